@@ -1,0 +1,210 @@
+"""Camera model and attitude conventions (``conventions.md``, exactly).
+
+A pixel's direction in the world (ENU at the camera) is
+``R_world_body(yaw, pitch, roll) @ R_body_mast(pan, tilt) @ C @ d_cam`` with
+``d_cam = ((u - cx)/fx, (v - cy)/fy, 1)`` for an undistorted pixel (u column, v row, 0-based).
+
+All public angles are in degrees; azimuth is clockwise from grid north (+y), elevation is
+positive up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .errors import ParameterError
+
+#: camera axes (x right, y down, z forward) -> body axes (x right, y forward, z up)
+C_CAM_TO_BODY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+
+
+def rot_x(angle_deg: float) -> np.ndarray:
+    """``Rx(a)`` of ``conventions.md``; angle in degrees."""
+    a = np.radians(angle_deg)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(angle_deg: float) -> np.ndarray:
+    """``Ry(a)`` of ``conventions.md``; angle in degrees."""
+    a = np.radians(angle_deg)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_z(angle_deg: float) -> np.ndarray:
+    """``Rz(a)`` of ``conventions.md``; angle in degrees."""
+    a = np.radians(angle_deg)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def r_body_mast(pan_deg: float, tilt_deg: float) -> np.ndarray:
+    """Mast head to body: ``Rz(-pan) @ Rx(tilt)``; pan clockwise positive, tilt up positive [deg]."""
+    return rot_z(-pan_deg) @ rot_x(tilt_deg)
+
+
+def r_world_body(yaw_deg: float, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> np.ndarray:
+    """Body to world (ENU): ``Rz(-yaw) @ Rx(pitch) @ Ry(roll)`` [deg].
+
+    yaw: heading clockwise from grid north; pitch: nose up positive; roll: right side down positive.
+    """
+    return rot_z(-yaw_deg) @ rot_x(pitch_deg) @ rot_y(roll_deg)
+
+
+def r_world_cam(yaw_deg, pitch_deg, roll_deg, pan_deg, tilt_deg) -> np.ndarray:
+    """Camera axes to world (ENU) for a rover attitude and a mast pointing [deg]."""
+    return r_world_body(yaw_deg, pitch_deg, roll_deg) @ r_body_mast(pan_deg, tilt_deg) @ C_CAM_TO_BODY
+
+
+def direction_to_az_el(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Azimuth [deg, 0..360, clockwise from +y] and elevation [deg] of direction vectors ``(..., 3)``."""
+    d = np.asarray(d, dtype=float)
+    az = np.degrees(np.arctan2(d[..., 0], d[..., 1])) % 360.0
+    el = np.degrees(np.arctan2(d[..., 2], np.hypot(d[..., 0], d[..., 1])))
+    return az, el
+
+
+def az_el_to_direction(az_deg, el_deg) -> np.ndarray:
+    """Unit direction vectors ``(..., 3)`` (ENU) for azimuth/elevation [deg]."""
+    az = np.radians(np.asarray(az_deg, dtype=float))
+    el = np.radians(np.asarray(el_deg, dtype=float))
+    ce = np.cos(el)
+    return np.stack([ce * np.sin(az), ce * np.cos(az), np.sin(el)], axis=-1)
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """OpenCV's radial/tangential model (k1, k2, p1, p2, k3), dimensionless."""
+
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+
+    @property
+    def is_zero(self) -> bool:
+        return not any((self.k1, self.k2, self.p1, self.p2, self.k3))
+
+    def as_array(self) -> np.ndarray:
+        """OpenCV's coefficient order ``(k1, k2, p1, p2, k3)``."""
+        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3])
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole intrinsics in pixels, with OpenCV distortion.
+
+    width, height : int  [px]
+    fx, fy : float  [px]  focal lengths
+    cx, cy : float  [px]  principal point, 0-based (centre of a 1024-px image: 511.5)
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: Distortion = field(default_factory=Distortion)
+
+    def __post_init__(self):
+        if self.width <= 0 or self.height <= 0:
+            raise ParameterError(f"camera size must be positive, got {self.width} x {self.height}")
+        if not (self.fx > 0 and self.fy > 0):
+            raise ParameterError(f"camera focal lengths must be > 0 px, got fx={self.fx}, fy={self.fy}")
+
+    @property
+    def hfov_deg(self) -> float:
+        """Horizontal field of view [deg] (undistorted pinhole)."""
+        return float(np.degrees(2 * np.arctan2(self.width / 2.0, self.fx)))
+
+    @property
+    def vfov_deg(self) -> float:
+        """Vertical field of view [deg] (undistorted pinhole)."""
+        return float(np.degrees(2 * np.arctan2(self.height / 2.0, self.fy)))
+
+    def matrix(self) -> np.ndarray:
+        """3x3 intrinsic matrix K."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def with_size(self, width: int, height: int) -> "Camera":
+        return replace(self, width=width, height=height)
+
+    # --- projection -------------------------------------------------------------------------
+    def distort_normalized(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Apply OpenCV distortion to normalised image coordinates."""
+        d = self.distortion
+        if d.is_zero:
+            return x, y
+        r2 = x * x + y * y
+        radial = 1 + d.k1 * r2 + d.k2 * r2 * r2 + d.k3 * r2 * r2 * r2
+        xd = x * radial + 2 * d.p1 * x * y + d.p2 * (r2 + 2 * x * x)
+        yd = y * radial + d.p1 * (r2 + 2 * y * y) + 2 * d.p2 * x * y
+        return xd, yd
+
+    def undistort_normalized(self, xd: np.ndarray, yd: np.ndarray, iterations: int = 20):
+        """Invert :meth:`distort_normalized` by fixed-point iteration (as OpenCV does)."""
+        d = self.distortion
+        if d.is_zero:
+            return xd, yd
+        x, y = np.array(xd, dtype=float), np.array(yd, dtype=float)
+        for _ in range(iterations):
+            r2 = x * x + y * y
+            radial = 1 + d.k1 * r2 + d.k2 * r2 * r2 + d.k3 * r2 * r2 * r2
+            dx = 2 * d.p1 * x * y + d.p2 * (r2 + 2 * x * x)
+            dy = d.p1 * (r2 + 2 * y * y) + 2 * d.p2 * x * y
+            x = (xd - dx) / radial
+            y = (yd - dy) / radial
+        return x, y
+
+    def pixel_to_ray(self, u, v) -> np.ndarray:
+        """Camera-frame direction ``(..., 3)`` (not normalised, z = 1) of pixel (u, v) [px]."""
+        u = np.asarray(u, dtype=float)
+        v = np.asarray(v, dtype=float)
+        x, y = self.undistort_normalized((u - self.cx) / self.fx, (v - self.cy) / self.fy)
+        return np.stack([x, y, np.ones_like(x)], axis=-1)
+
+    def ray_to_pixel(self, d_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixel (u, v) [px] of camera-frame directions ``(..., 3)``, and a mask of those in front."""
+        d_cam = np.asarray(d_cam, dtype=float)
+        z = d_cam[..., 2]
+        front = z > 1e-9
+        zs = np.where(front, z, 1.0)
+        x, y = self.distort_normalized(d_cam[..., 0] / zs, d_cam[..., 1] / zs)
+        return self.fx * x + self.cx, self.fy * y + self.cy, front
+
+    def to_dict(self) -> dict:
+        d = self.distortion
+        return {
+            "width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy,
+            "cx": self.cx, "cy": self.cy,
+            "distortion": {"k1": d.k1, "k2": d.k2, "p1": d.p1, "p2": d.p2, "k3": d.k3},
+        }
+
+
+def camera_from_fov(width: int, height: int, hfov_deg: float, distortion: Distortion | None = None) -> Camera:
+    """Square-pixel camera with the principal point at the image centre and a horizontal FoV [deg]."""
+    fx = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
+    return Camera(width, height, float(fx), float(fx), (width - 1) / 2.0, (height - 1) / 2.0,
+                  distortion or Distortion())
+
+
+#: Named camera presets. ``navcam``: 1024 x 1024, 45 deg, like the ExoMars / Mars 2020 navigation
+#: cameras. ``wide``: 1280 x 960, 90 deg, with mild barrel distortion.
+CAMERA_PRESETS = {
+    "navcam": camera_from_fov(1024, 1024, 45.0),
+    "wide": camera_from_fov(1280, 960, 90.0, Distortion(k1=-0.05, k2=0.01)),
+}
+
+
+def get_camera(name: str) -> Camera:
+    try:
+        return CAMERA_PRESETS[name]
+    except KeyError:
+        raise ParameterError(
+            f"unknown camera preset {name!r}: choose one of {', '.join(CAMERA_PRESETS)}"
+        ) from None

@@ -1,0 +1,87 @@
+"""The ``skyfix`` command group.
+
+Subcommands are imported only when invoked, so ``skyfix --help`` stays instant and heavy
+modules (numba, cv2, dask, matplotlib) load only for the command that needs them. A
+:class:`~skyfix.errors.SkyfixError` is printed as one line and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import sys
+
+import click
+
+from .. import __version__
+from ..errors import SkyfixError
+
+#: command name -> (module under skyfix.cli, function name, one-line help)
+COMMANDS = {
+    "horizon": ("horizon", "horizon", "Render the skyline a DEM predicts from one point."),
+    "build-db": ("build_db", "build_db", "Build a skyline database over a search area."),
+    "info": ("info", "info", "Describe a skyline database."),
+    "verify": ("verify", "verify", "Check a skyline database block by block."),
+    "simulate": ("simulate", "simulate", "Simulate a rover acquisition from a DEM."),
+    "simulate-set": ("simulate", "simulate_set", "Simulate a named robustness set."),
+    "detect": ("detect", "detect", "Detect the skyline in an image."),
+    "profile": ("profile", "profile", "Turn an acquisition into an angular skyline profile."),
+    "locate": ("locate", "locate", "Find position, heading and attitude from an acquisition."),
+    "heading": ("locate", "heading", "Find the heading only, from a rough position."),
+    "demo": ("demo", "demo", "Run the whole pipeline on bundled or generated data."),
+    "evaluate": ("evaluate", "evaluate", "Evaluate a scenario on simulated cases."),
+    "evaluate-detect": ("evaluate", "evaluate_detect", "Score skyline detection on labelled images."),
+}
+
+
+class LazyGroup(click.Group):
+    def list_commands(self, ctx):
+        return list(COMMANDS)
+
+    def get_command(self, ctx, name):
+        if name not in COMMANDS:
+            return None
+        module, attr, _ = COMMANDS[name]
+        try:
+            mod = importlib.import_module(f"skyfix.cli.{module}")
+        except ModuleNotFoundError as e:
+            if e.name == f"skyfix.cli.{module}":
+                return None
+            raise
+        return getattr(mod, attr)
+
+    def format_commands(self, ctx, formatter):
+        # Help text from the table, without importing every subcommand module.
+        rows = [(name, help_) for name, (_, _, help_) in COMMANDS.items()]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except SkyfixError as e:
+            raise UserError(str(e)) from None
+
+
+class UserError(click.ClickException):
+    """A SkyfixError as the CLI reports it: ``Error: <message>``, exit status 2."""
+
+    exit_code = 2
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, "--version", prog_name="skyfix")
+@click.option("-v", "--verbose", count=True, help="More log output (repeat for debug).")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors.")
+def cli(verbose: int, quiet: bool):
+    """skyfix: where a rover is and which way it faces, from the skyline."""
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+
+
+def main():  # console-script entry point
+    cli()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,348 @@
+"""Stage 1: read a DEM, bring it to a metric CRS, fill small voids, build a max pyramid.
+
+Grid convention: ``z[i, j]`` is the height [m] at the centre of pixel (row i, column j), at
+``x = x0 + j * dx`` and ``y = y0 - i * dy`` (row 0 is north). Heights between pixel centres are
+bilinear; the usable area is the hull of pixel centres, :attr:`Dem.bounds`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DemError, OutsideDemError, ParameterError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class VoidReport:
+    """What happened to no-data cells on load (counts in cells)."""
+
+    n_void: int = 0
+    n_filled: int = 0
+    n_remaining: int = 0
+    fraction: float = 0.0
+
+    def __str__(self) -> str:
+        if not self.n_void:
+            return "no voids"
+        return (f"{self.n_void} void cells ({100 * self.fraction:.1f} %): {self.n_filled} filled, "
+                f"{self.n_remaining} left masked")
+
+
+class Dem:
+    """A north-up DEM in a metric CRS.
+
+    z : float32 (ny, nx) heights [m], NaN where unknown
+    x0, y0 : [m] coordinates of the centre of pixel (0, 0)
+    dx, dy : [m] pixel size along x (east) and y (south), both > 0
+    crs_wkt : the projected CRS as WKT; crs_name a short name (``EPSG:32611``) where one exists
+    """
+
+    def __init__(self, z, x0, y0, dx, dy, crs_wkt="", crs_name="", *, source="", checksum="",
+                 voids: VoidReport | None = None):
+        z = np.ascontiguousarray(z, dtype=np.float32)
+        if z.ndim != 2 or min(z.shape) < 2:
+            raise DemError(f"a DEM must be a 2-D grid of at least 2 x 2 cells, got shape {z.shape}")
+        if not (dx > 0 and dy > 0):
+            raise DemError(f"DEM pixel size must be positive, got dx={dx}, dy={dy}")
+        self.z = z
+        self.x0, self.y0, self.dx, self.dy = float(x0), float(y0), float(dx), float(dy)
+        self.crs_wkt = crs_wkt
+        self.crs_name = crs_name
+        self.source = str(source)
+        self.checksum = checksum or hashlib.sha256(z.tobytes()).hexdigest()
+        self.voids = voids or VoidReport()
+
+    # --- geometry ------------------------------------------------------------------------------
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.z.shape
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) [m] of the pixel-centre hull, where heights are defined."""
+        ny, nx = self.z.shape
+        return (self.x0, self.y0 - (ny - 1) * self.dy, self.x0 + (nx - 1) * self.dx, self.y0)
+
+    @property
+    def cell_m(self) -> float:
+        """Nominal cell size [m] (the larger of dx, dy)."""
+        return max(self.dx, self.dy)
+
+    def xy_to_colrow(self, x, y):
+        """Fractional (column, row) of world coordinates [m]."""
+        return (np.asarray(x, float) - self.x0) / self.dx, (self.y0 - np.asarray(y, float)) / self.dy
+
+    def colrow_to_xy(self, col, row):
+        return self.x0 + np.asarray(col, float) * self.dx, self.y0 - np.asarray(row, float) * self.dy
+
+    def contains(self, x, y, margin_m: float = 0.0):
+        """True where (x, y) [m] lies inside :attr:`bounds` shrunk by ``margin_m``."""
+        xmin, ymin, xmax, ymax = self.bounds
+        x = np.asarray(x, float)
+        y = np.asarray(y, float)
+        return (x >= xmin + margin_m) & (x <= xmax - margin_m) & (y >= ymin + margin_m) & (y <= ymax - margin_m)
+
+    def height_at(self, x, y):
+        """Bilinear height [m] at (x, y) [m]; NaN outside the DEM or next to a void."""
+        col, row = self.xy_to_colrow(x, y)
+        col, row = np.broadcast_arrays(col, row)
+        ny, nx = self.z.shape
+        out = np.full(col.shape, np.nan)
+        ok = (col >= 0) & (col <= nx - 1) & (row >= 0) & (row <= ny - 1)
+        c, r = col[ok], row[ok]
+        j = np.minimum(np.floor(c).astype(np.int64), nx - 2)
+        i = np.minimum(np.floor(r).astype(np.int64), ny - 2)
+        fu, fv = c - j, r - i
+        z = self.z
+        out[ok] = (z[i, j] * (1 - fu) * (1 - fv) + z[i, j + 1] * fu * (1 - fv)
+                   + z[i + 1, j] * (1 - fu) * fv + z[i + 1, j + 1] * fu * fv)
+        return out if out.ndim else float(out)
+
+    def require_inside(self, x, y, what: str = "point") -> None:
+        """Raise :class:`OutsideDemError` unless every (x, y) lies inside with a known height."""
+        x = np.atleast_1d(np.asarray(x, float))
+        y = np.atleast_1d(np.asarray(y, float))
+        inside = self.contains(x, y)
+        if not inside.all():
+            k = int(np.flatnonzero(~inside)[0])
+            xmin, ymin, xmax, ymax = self.bounds
+            raise OutsideDemError(
+                f"{what} ({x[k]:.1f}, {y[k]:.1f}) is outside the DEM: valid x {xmin:.1f}..{xmax:.1f}, "
+                f"y {ymin:.1f}..{ymax:.1f} in {self.crs_name or 'the DEM CRS'}"
+            )
+        h = self.height_at(x, y)
+        if not np.all(np.isfinite(h)):
+            k = int(np.flatnonzero(~np.isfinite(h))[0])
+            raise OutsideDemError(f"{what} ({x[k]:.1f}, {y[k]:.1f}) falls in a DEM void (no height there)")
+
+    # --- far-field acceleration ------------------------------------------------------------------
+    @cached_property
+    def pyramid(self) -> list[np.ndarray]:
+        """Max pyramid over bilinear cells: level 0 ``(ny-1, nx-1)`` holds the maximum of each cell's
+        four corner heights, level L+1 the maximum of 2 x 2 blocks of level L. Voids are ignored
+        (-inf where a block has no height). Because bilinear heights never exceed their corners, a
+        block's value bounds every height inside it: a far ridge is never lost."""
+        return build_max_pyramid(self.z)
+
+    def packed_pyramid(self):
+        """The pyramid flattened for numba: (data, offsets, rows, cols)."""
+        levels = self.pyramid
+        offs = np.cumsum([0] + [lv.size for lv in levels[:-1]]).astype(np.int64)
+        data = np.concatenate([lv.ravel() for lv in levels]).astype(np.float32)
+        rows = np.array([lv.shape[0] for lv in levels], np.int64)
+        cols = np.array([lv.shape[1] for lv in levels], np.int64)
+        return data, offs, rows, cols
+
+    def describe(self) -> str:
+        ny, nx = self.z.shape
+        zmin, zmax = np.nanmin(self.z), np.nanmax(self.z)
+        return (f"{Path(self.source).name or 'DEM'}: {nx} x {ny} cells of {self.dx:g} x {self.dy:g} m, "
+                f"{self.crs_name or 'custom CRS'}, heights {zmin:.0f}..{zmax:.0f} m, {self.voids}")
+
+    # --- constructors ----------------------------------------------------------------------------
+    @classmethod
+    def from_array(cls, z, spacing_m: float, x0: float = 0.0, y0: float | None = None,
+                   crs: str = "EPSG:32611") -> "Dem":
+        """A DEM from an array (row 0 north) with square cells; handy for tests and demos.
+
+        ``y0`` defaults to ``(ny - 1) * spacing_m`` so that the south-west pixel centre is at (x0, 0).
+        """
+        from pyproj import CRS
+
+        z = np.asarray(z, np.float32)
+        if y0 is None:
+            y0 = (z.shape[0] - 1) * spacing_m
+        c = CRS.from_user_input(crs)
+        return cls(z, x0, y0, spacing_m, spacing_m, c.to_wkt(), _crs_name(c))
+
+
+def build_max_pyramid(z: np.ndarray) -> list[np.ndarray]:
+    """See :attr:`Dem.pyramid`."""
+    zz = np.where(np.isfinite(z), z, -np.inf).astype(np.float32)
+    cell = np.maximum(np.maximum(zz[:-1, :-1], zz[:-1, 1:]), np.maximum(zz[1:, :-1], zz[1:, 1:]))
+    levels = [cell]
+    while max(levels[-1].shape) > 1:
+        a = levels[-1]
+        ny, nx = a.shape
+        pad = np.full((ny + ny % 2, nx + nx % 2), -np.inf, np.float32)
+        pad[:ny, :nx] = a
+        levels.append(np.maximum(np.maximum(pad[0::2, 0::2], pad[0::2, 1::2]),
+                                 np.maximum(pad[1::2, 0::2], pad[1::2, 1::2])))
+    return levels
+
+
+def _crs_name(crs) -> str:
+    auth = crs.to_authority(min_confidence=70)
+    return f"{auth[0]}:{auth[1]}" if auth else (crs.name or "")
+
+
+def utm_crs_for(lon: float, lat: float):
+    """The WGS 84 UTM zone CRS containing (lon, lat) [deg]."""
+    from pyproj import CRS
+
+    zone = int((lon + 180.0) // 6.0) % 60 + 1
+    return CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
+
+
+def file_checksum(path, chunk: int = 1 << 20) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while b := f.read(chunk):
+            h.update(b)
+    return h.hexdigest()
+
+
+def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
+             fill_max_cells: int = 100) -> Dem:
+    """Read a GeoTIFF (any raster rasterio reads) as a north-up metric :class:`Dem`.
+
+    path : DEM file
+    crs : target CRS (``EPSG:…``, WKT, PROJ); default: the DEM's own if projected in metres, else
+        the local UTM zone of the DEM's centre
+    resolution_m : [m] pixel size when reprojecting; default about the native size
+    fill_max_cells : [cells] voids are filled by inverse-distance interpolation when a valid height
+        lies within this many cells; larger voids stay masked (NaN) and are reported
+    """
+    import rasterio
+    from pyproj import CRS
+    from rasterio.errors import RasterioIOError
+    from rasterio.warp import Resampling, calculate_default_transform, reproject
+
+    path = Path(path)
+    if not path.exists():
+        raise DemError(f"DEM file {path} does not exist")
+    if fill_max_cells < 0:
+        raise ParameterError("fill_max_cells must be >= 0")
+    try:
+        src = rasterio.open(path)
+    except RasterioIOError as e:
+        raise DemError(f"cannot read {path} as a raster ({e}); give a GeoTIFF DEM") from None
+    with src:
+        if src.crs is None:
+            raise DemError(
+                f"{path} has no CRS: assign one (e.g. `gdal_edit.py -a_srs EPSG:32611 {path.name}`) "
+                "so positions mean something"
+            )
+        src_crs = CRS.from_user_input(src.crs.to_wkt())
+        band = src.read(1, masked=True).astype(np.float64)
+        z = band.filled(np.nan)
+        z[~np.isfinite(z)] = np.nan
+        transform = src.transform
+        if crs is not None:
+            try:
+                dst_crs = CRS.from_user_input(crs)
+            except Exception as e:  # pyproj raises CRSError, a plain Exception subclass
+                raise ParameterError(f"cannot understand CRS {crs!r}: {e}") from None
+        elif src_crs.is_geographic:
+            west, south, east, north = src.bounds
+            dst_crs = utm_crs_for((west + east) / 2, (south + north) / 2)
+        else:
+            dst_crs = src_crs
+        if not dst_crs.is_projected or abs(dst_crs.axis_info[0].unit_conversion_factor - 1.0) > 1e-9:
+            raise DemError(f"target CRS {_crs_name(dst_crs) or dst_crs.name} is not projected in metres: "
+                           "pass --crs with a metric projected CRS (e.g. a UTM zone)")
+        north_up = transform.b == 0 and transform.d == 0 and transform.a > 0 and transform.e < 0
+        if dst_crs != src_crs or not north_up or (resolution_m and resolution_m != abs(transform.a)):
+            dst_transform, w, h = calculate_default_transform(
+                src.crs, dst_crs.to_wkt(), src.width, src.height, *src.bounds,
+                resolution=resolution_m)
+            if resolution_m is None:  # square pixels at the finer of the two native sizes
+                res = min(abs(dst_transform.a), abs(dst_transform.e))
+                dst_transform, w, h = calculate_default_transform(
+                    src.crs, dst_crs.to_wkt(), src.width, src.height, *src.bounds, resolution=res)
+            out = np.full((h, w), np.nan, np.float64)
+            reproject(np.where(np.isfinite(z), z, np.nan), out, src_transform=transform,
+                      src_crs=src.crs, dst_transform=dst_transform, dst_crs=dst_crs.to_wkt(),
+                      resampling=Resampling.bilinear, src_nodata=np.nan, dst_nodata=np.nan)
+            # Trim the all-NaN wedges a reprojection leaves at the borders.
+            z, dst_transform = _trim_nan_border(out, dst_transform)
+            transform = dst_transform
+            log.info("reprojected %s from %s to %s", path.name, _crs_name(src_crs), _crs_name(dst_crs))
+    voids = _fill_voids(z, fill_max_cells)
+    dx, dy = transform.a, -transform.e
+    return Dem(z, transform.c + dx / 2, transform.f - dy / 2, dx, dy, dst_crs.to_wkt(),
+               _crs_name(dst_crs), source=str(path), checksum=file_checksum(path), voids=voids)
+
+
+def _trim_nan_border(z: np.ndarray, transform):
+    """Largest axis-aligned rectangle trimming rows/columns that are mostly NaN at the borders."""
+    from rasterio.transform import Affine
+
+    valid = np.isfinite(z)
+    r0, r1, c0, c1 = 0, z.shape[0], 0, z.shape[1]
+    # Shrink the side whose edge line has the most voids until every edge line is >= 99 % valid.
+    for _ in range(sum(z.shape)):
+        edges = {
+            "top": valid[r0, c0:c1].mean(), "bottom": valid[r1 - 1, c0:c1].mean(),
+            "left": valid[r0:r1, c0].mean(), "right": valid[r0:r1, c1 - 1].mean(),
+        }
+        side = min(edges, key=edges.get)
+        if edges[side] >= 0.99 or r1 - r0 < 3 or c1 - c0 < 3:
+            break
+        if side == "top":
+            r0 += 1
+        elif side == "bottom":
+            r1 -= 1
+        elif side == "left":
+            c0 += 1
+        else:
+            c1 -= 1
+    t = transform * Affine.translation(c0, r0)
+    return z[r0:r1, c0:c1].copy(), t
+
+
+def _fill_voids(z: np.ndarray, max_cells: int) -> VoidReport:
+    """Fill NaN voids in place where a valid height is within ``max_cells``; report counts."""
+    void = ~np.isfinite(z)
+    n_void = int(void.sum())
+    if n_void == 0:
+        return VoidReport()
+    if n_void == void.size:
+        raise DemError("the DEM holds no valid heights at all")
+    n_filled = 0
+    if max_cells > 0:
+        from rasterio.fill import fillnodata
+
+        filled = fillnodata(np.where(void, 0, z).astype(np.float32), mask=(~void).astype(np.uint8),
+                            max_search_distance=float(max_cells), smoothing_iterations=0)
+        # fillnodata leaves cells it could not reach untouched (0 here): keep them NaN.
+        reach = _within_distance(~void, max_cells)
+        fill_here = void & reach
+        z[fill_here] = filled[fill_here]
+        n_filled = int(fill_here.sum())
+    rep = VoidReport(n_void, n_filled, n_void - n_filled, n_void / z.size)
+    log.info("DEM voids: %s", rep)
+    return rep
+
+
+def _within_distance(valid: np.ndarray, max_cells: int) -> np.ndarray:
+    from scipy.ndimage import distance_transform_edt
+
+    return distance_transform_edt(~valid) <= max_cells
+
+
+def write_dem(path, dem: Dem) -> Path:
+    """Write a :class:`Dem` as a float32 GeoTIFF (NaN nodata), atomically."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from ._io import atomic_path
+
+    path = Path(path)
+    ny, nx = dem.z.shape
+    transform = from_origin(dem.x0 - dem.dx / 2, dem.y0 + dem.dy / 2, dem.dx, dem.dy)
+    with atomic_path(path, suffix=".tif") as tmp:
+        with rasterio.open(tmp, "w", driver="GTiff", width=nx, height=ny, count=1, dtype="float32",
+                           crs=dem.crs_wkt or None, transform=transform, nodata=np.nan,
+                           compress="deflate") as dst:
+            dst.write(dem.z, 1)
+    return path
