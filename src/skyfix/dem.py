@@ -296,7 +296,7 @@ def _trim_nan_border(z: np.ndarray, transform):
             c0 += 1
         else:
             c1 -= 1
-    t = transform * Affine.translation(c0, r0)
+    t = transform @ Affine.translation(c0, r0)
     return z[r0:r1, c0:c1].copy(), t
 
 
