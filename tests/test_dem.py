@@ -90,3 +90,15 @@ def test_large_voids_stay_masked_and_points_in_them_are_refused():
     dem = Dem.from_array(z, 10.0)
     with pytest.raises(OutsideDemError, match="void"):
         dem.require_inside(250.0, 250.0)
+
+
+def test_fractal_dem_is_reproducible_and_has_the_requested_relief():
+    from skyfix.dem import fractal_dem
+
+    a = fractal_dem(128, 30.0, relief_m=800.0, seed=5)
+    b = fractal_dem(128, 30.0, relief_m=800.0, seed=5)
+    c = fractal_dem(128, 30.0, relief_m=800.0, seed=6)
+    np.testing.assert_array_equal(a.z, b.z)
+    assert not np.array_equal(a.z, c.z)
+    assert float(a.z.max() - a.z.min()) == pytest.approx(800.0, rel=1e-4)
+    assert a.crs_name == "EPSG:32611" and a.dx == 30.0
