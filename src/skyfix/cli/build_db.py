@@ -1,0 +1,38 @@
+"""``skyfix build-db``: build (or resume) a skyline database over a search area."""
+
+from __future__ import annotations
+
+import click
+
+
+@click.command("build-db")
+@click.argument("dem", type=click.Path(dir_okay=False))
+@click.option("--out", "-o", required=True, type=click.Path(), help="Output zarr store (a folder).")
+@click.option("--bounds", nargs=4, type=float, required=True, metavar="XMIN YMIN XMAX YMAX",
+              help="Search area [m] in the DEM's CRS; positions at xmin + c*spacing, ymax - r*spacing.")
+@click.option("--spacing-m", type=float, required=True, help="Grid spacing [m].")
+@click.option("--camera-height-m", type=float, default=1.5, show_default=True, help="[m] above ground.")
+@click.option("--azimuth-bins", type=int, default=360, show_default=True, help="Bins over 360 deg.")
+@click.option("--max-distance-m", type=float, default=None, help="[m] ray limit (default: DEM edge).")
+@click.option("--planet", default="earth", show_default=True, help="earth, mars or a radius [m].")
+@click.option("--workers", type=int, default=None,
+              help="0: in this process; N: a local Dask cluster of N processes (default: one per core).")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="Use an existing Dask cluster (tcp://HOST:PORT) sharing this file system.")
+@click.option("--overwrite", is_flag=True, help="Delete an existing database and start afresh.")
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_distance_m, planet,
+             workers, scheduler, overwrite, no_progress):
+    """Render the skyline at every grid position of BOUNDS from DEM into a zarr store.
+
+    Killed at any point, the same command resumes where it stopped; --overwrite starts afresh.
+    """
+    from ..database import build_database
+
+    r = build_database(dem, out, bounds, spacing_m, camera_height_m=camera_height_m,
+                       azimuth_bins=azimuth_bins, max_distance_m=max_distance_m, planet=planet,
+                       workers=workers, scheduler=scheduler, overwrite=overwrite,
+                       progress=not no_progress)
+    click.echo(f"{r.path}: {r.n_blocks} blocks ({r.built} built now, {r.resumed_from} already there), "
+               f"{r.positions} skylines in {r.seconds:.1f} s ({r.skylines_per_s:,.0f}/s), "
+               f"{r.size_bytes / 1e6:.1f} MB on disk")
