@@ -70,6 +70,7 @@ class DpOptions:
     none_cost : extra cost of the no-skyline state per column (what a missing edge costs)
     switch_cost : cost of switching between skyline and no-skyline between columns
     vertical_cost : extra cost per pixel of a move within a column
+    jump_cost : cost of a one-row change between columns
     refine_band : half-height of the full-resolution refinement band, in working-scale rows
     no_data_black : treat (0, 0, 0) pixels as no data
     """
@@ -80,10 +81,11 @@ class DpOptions:
     w_height: float = 0.1
     w_diff: float = 0.05
     w_region: float = 0.08
-    texture_ratio: float = 0.35
-    none_cost: float = 0.5
+    texture_ratio: float = 0.3
+    none_cost: float = 0.2
     switch_cost: float = 8.0
     vertical_cost: float = 0.15
+    jump_cost: float = 0.05
     refine_band: float = 1.5
     no_data_black: bool = True
 
@@ -305,11 +307,50 @@ def _to_float_gray(img):
     return g
 
 
+@numba.njit(cache=True)
+def _mirror_fill_columns(arr, valid, out, done):
+    """Above the first and below the last valid pixel of a column, mirror the column about that
+    pixel: a mirrored edge has the same gradient as the data, so the first valid row does not look
+    smoother (more sky-like) than the rows below it, as it would with replicated values."""
+    H, W = valid.shape
+    for c in range(W):
+        t0 = -1
+        t1 = -1
+        for r in range(H):
+            if valid[r, c]:
+                if t0 < 0:
+                    t0 = r
+                t1 = r
+        if t0 < 0:
+            continue
+        for r in range(0, t0):
+            src = min(2 * t0 - r, t1)
+            if not valid[src, c]:
+                src = t0
+            out[r, c] = arr[src, c]
+            done[r, c] = True
+        for r in range(t1 + 1, H):
+            src = max(2 * t1 - r, t0)
+            if not valid[src, c]:
+                src = t1
+            out[r, c] = arr[src, c]
+            done[r, c] = True
+
+
 def _fill_invalid(arr, valid):
-    """Replace invalid pixels by their nearest valid neighbour (so no-data makes no edges)."""
+    """Replace invalid pixels from valid ones (so no-data makes no edges): mirrored along the
+    column above and below the data, nearest valid pixel elsewhere."""
     if valid.all() or not valid.any():
         return arr
     from scipy import ndimage
+
+    if arr.ndim == 2:
+        out = arr.copy()
+        done = valid.copy()
+        _mirror_fill_columns(arr, valid, out, done)
+        if done.all():
+            return out
+        arr, valid = out, done
 
     # strongly anisotropic distance: take the nearest valid pixel of the same column when there is
     # one (replicating the edge row vertically makes no horizontal seam, which isotropic nearest
@@ -349,8 +390,10 @@ def _texture(gray_s, valid_s, radius):
     gx = cv2.Sobel(gray_s, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(gray_s, cv2.CV_32F, 0, 1, ksize=3)
     mag = np.sqrt(gx * gx + gy * gy)
+    # averaged along the row only: a vertical blur would smear the sky/terrain boundary over
+    # several rows, and the region term sums rows exactly
     k = 2 * radius + 1
-    return cv2.blur(mag, (k, k))
+    return cv2.blur(mag, (k, 1))
 
 
 # --- the dp detector -----------------------------------------------------------------------------
@@ -397,12 +440,17 @@ def _dp_costs(gray_s, valid_s, opt: DpOptions):
     return enter, vert, G, none, d
 
 
-def _refine_full(gray, valid, rows_s, f, opt: DpOptions):
-    """Full-resolution rows from working-scale rows: a band DP on the vertical intensity step."""
+def _refine_full(gray, valid, top_full, bottom_full, f, opt: DpOptions):
+    """Full-resolution rows from the working-scale path: a DP on the vertical intensity step.
+
+    top_full, bottom_full (W,): full-resolution rows [px] spanned by the working-scale path in
+    each column (NaN = no skyline). The search band is that span widened by ``refine_band`` f
+    rows; the row change between columns is free within the band, so steep sections survive.
+    """
     import cv2
 
     H, W = gray.shape
-    have = np.isfinite(rows_s)
+    have = np.isfinite(top_full)
     out = np.full(W, np.nan)
     if not have.any():
         return out
@@ -413,45 +461,38 @@ def _refine_full(gray, valid, rows_s, f, opt: DpOptions):
     ok = valid.copy()
     ok[1:] &= valid[:-1]
     ok[0] = False
-    band = int(math.ceil(opt.refine_band * f)) + 1
-    # centre of the band per full-res column
-    centre = np.interp(np.arange(W), np.flatnonzero(have), rows_s[have])
-    centre = np.round(centre).astype(np.int64)
-    nb = 2 * band + 1
-    cost = np.full((nb, W), _BIG)
-    Gb = np.zeros((nb, W))
-    cols = np.arange(W)
+    m = int(math.ceil(opt.refine_band * f)) + 1
+    a = np.where(have, np.floor(np.nan_to_num(top_full)) - m, 0).astype(np.int64)
+    b = np.where(have, np.ceil(np.nan_to_num(bottom_full)) + f - 1 + m, -1).astype(np.int64)
+    a = np.clip(a, 0, H - 1)
+    b = np.clip(b, -1, H - 1)
+    lo = int(a[have].min())
+    hi = int(b[have].max()) + 1
+    rows = np.arange(lo, hi)[:, None]
+    inband = (rows >= a[None, :]) & (rows <= b[None, :])
+    sub_ok = ok[lo:hi] & inband
     scale = np.percentile(step[ok], 99.5) if ok.any() else 1.0
-    for k in range(nb):
-        r = centre + k - band
-        inside = (r >= 0) & (r < H)
-        rr = np.clip(r, 0, H - 1)
-        s = step[rr, cols] / max(scale, 1e-6)
-        good = inside & ok[rr, cols]
-        cost[k] = np.where(good, 1.0 - np.clip(s, 0, 1), _BIG)
-    # columns the coarse pass called no-skyline stay so; others follow the band optimum
+    # prefer the coarse span (its centre) a little, so texture steps nearby do not pull the row
+    mid = 0.5 * (np.nan_to_num(top_full) + np.nan_to_num(bottom_full) + f - 1)
+    span = 0.5 * (np.nan_to_num(bottom_full) - np.nan_to_num(top_full) + f) + 1.0
+    off_c = np.clip(np.abs(rows - mid[None, :]) - span[None, :], 0, None) / max(m, 1)
+    cost = np.where(sub_ok, 1.0 - np.clip(step[lo:hi] / max(scale, 1e-6), 0, 1) + 0.3 * off_c, _BIG)
+    # columns the coarse pass called no-skyline stay so; the others follow the band optimum
     none = np.where(have, _BIG, 0.0)
-    # rows in band coordinates shift with the centre: express the band in absolute rows instead
-    lo = max(0, int(centre.min()) - band)
-    hi = min(H, int(centre.max()) + band + 1)
-    absc = np.full((hi - lo, W), _BIG)
-    for k in range(nb):
-        r = centre + k - band
-        sel = (r >= lo) & (r < hi)
-        absc[r[sel] - lo, cols[sel]] = cost[k, sel]
-    vert = np.full_like(absc, _BIG)
-    top, _ = _dp_solve(absc, vert, np.zeros_like(absc), none, max(1, f), 0.05, 0.0, 0.0)
+    vert = np.full_like(cost, _BIG)
+    win = int(min(hi - lo, 2 * m + 2 * f))
+    top, _ = _dp_solve(cost, vert, np.zeros_like(cost), none, win, 0.1, 0.0, 0.0)
     got = top >= 0
-    out[got] = top[got] + lo
+    cols = np.flatnonzero(got)
+    r = top[got] + lo
     # sub-pixel: parabola through the step magnitude around the chosen row
-    r = out[got].astype(np.int64)
-    c = cols[got]
     rm = np.clip(r - 1, 0, H - 1)
     rp = np.clip(r + 1, 0, H - 1)
-    a, b, cc = step[rm, c], step[r, c], step[rp, c]
-    den = a - 2 * b + cc
-    off = np.where(den < -1e-6, 0.5 * (a - cc) / np.where(den < -1e-6, den, -1.0), 0.0)
-    out[got] = r + np.clip(off, -0.5, 0.5)
+    s0, s1, s2 = step[rm, cols], step[r, cols], step[rp, cols]
+    den = s0 - 2 * s1 + s2
+    safe = np.where(den < -1e-6, den, -1.0)
+    off = np.where(den < -1e-6, 0.5 * (s0 - s2) / safe, 0.0)
+    out[cols] = r + np.clip(off, -0.5, 0.5)
     return out
 
 
@@ -464,13 +505,13 @@ def _detect_dp(img, valid, opt: DpOptions):
     gray_s = _downscale(gray, f)
     valid_s = _downscale_valid(valid, f)
     enter, vert, G, none, d = _dp_costs(gray_s, valid_s, opt)
-    top, bottom = _dp_solve(enter, vert, G, none, 1, 0.0, opt.w_diff, opt.switch_cost)
+    top, bottom = _dp_solve(enter, vert, G, none, 1, opt.jump_cost, opt.w_diff, opt.switch_cost)
     h, w = gray_s.shape
-    rows_s = np.where(top >= 0, top.astype(float), np.nan)
     # working column j covers full-res columns j f .. j f + f - 1; rows scale by f
     full_cols = np.minimum(np.arange(W) // f, w - 1)
-    rows_coarse = rows_s[full_cols] * f
-    rows = _refine_full(gray, valid, rows_coarse, f, opt)
+    top_f = np.where(top >= 0, top * float(f), np.nan)[full_cols]
+    bot_f = np.where(top >= 0, bottom * float(f), np.nan)[full_cols]
+    rows = _refine_full(gray, valid, top_f, bot_f, f, opt)
     # confidence: edge strength at the chosen pixel times how sky-like the pixels above are
     conf_s = np.zeros(w)
     have = top >= 0
@@ -583,10 +624,16 @@ def _detect_bayes(img, valid, opt: BayesOptions):
         p = np.clip(proba, 0.02, 0.98).reshape(h, w)
         llr = np.log((1 - p) / p)
     top = best
-    rows_s = np.where(top >= 0, top.astype(float), np.nan)
     full_cols = np.minimum(np.arange(W) // f, w - 1)
-    rows_coarse = rows_s[full_cols] * f
-    rows = _refine_full(gray, valid, rows_coarse, f, DpOptions())
+    top_f = np.where(top >= 0, top * float(f), np.nan)
+    # the smoothness window lets the coarse path jump: widen the band to the neighbours' rows
+    lo_f = np.copy(top_f)
+    hi_f = np.copy(top_f)
+    lo_f[1:] = np.fmin(lo_f[1:], top_f[:-1])
+    hi_f[:-1] = np.fmax(hi_f[:-1], top_f[1:])
+    lo_f[~np.isfinite(top_f)] = np.nan
+    hi_f[~np.isfinite(top_f)] = np.nan
+    rows = _refine_full(gray, valid, lo_f[full_cols], hi_f[full_cols], f, DpOptions())
     p_sky = 1 / (1 + np.exp(llr))
     conf_s = np.empty(w)
     for c in range(w):
