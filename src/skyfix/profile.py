@@ -21,6 +21,7 @@ Bin k is centred on ``k * 360 / n`` deg and holds the skyline elevation *at* tha
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -49,8 +50,7 @@ class PanRefinement:
     search_deg : [deg] largest pan correction searched
     step_deg : [deg] azimuth sampling of the overlap comparison
     min_overlap_deg : [deg] pairs overlapping less than this are not used
-    iterations : re-projections (a pan is a rotation about the tilted mast axis, not exactly an
-        azimuth shift, so the shift estimate is re-done with the corrected pans)
+    iterations : passes; the second, with the corrected pans, refines on the full overlaps
     """
 
     enabled: bool = True
@@ -58,7 +58,7 @@ class PanRefinement:
     search_deg: float = 3.0
     step_deg: float = 0.02
     min_overlap_deg: float = 2.0
-    iterations: int = 3
+    iterations: int = 2
 
 
 DEFAULT_REFINEMENT = PanRefinement()
@@ -217,7 +217,9 @@ def merge_samples(values: np.ndarray, sigmas: np.ndarray, weights: np.ndarray):
     with np.errstate(divide="ignore", invalid="ignore"):
         sig_comb = 1.0 / np.sqrt(inv.sum(axis=1))
         dev = np.abs(values - med[:, None])
-        mad = np.nanmedian(np.where(have, dev, np.nan), axis=1) if values.shape[1] else np.full(len(med), np.nan)
+        with warnings.catch_warnings():  # empty bins: NaN is the answer
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mad = np.nanmedian(np.where(have, dev, np.nan), axis=1)
         spread = np.where(count >= 2, 1.4826 * mad / np.sqrt(np.maximum(count, 1)), 0.0)
     sigma = np.where(count > 0, np.maximum(sig_comb, np.nan_to_num(spread)), np.nan)
     return med, sigma, count
@@ -231,7 +233,7 @@ def _frame_fine(camera, sky: Skyline, pan, tilt, pitch, roll, bins):
 
 
 def _pair_shift(fi: np.ndarray, fj: np.ndarray, step: float, search: float, min_overlap: int):
-    """Azimuth shift s [deg] with ``fj(az - s) ~ fi(az) + c`` over the overlap, and its weight.
+    """Azimuth shift s [deg] with ``fj(az - s) ~ fi(az)`` over the overlap, and its weight.
 
     Both are fine-sampled profiles on the same circular grid (NaN = not covered). The weight is the
     Fisher information of the shift (sum of squared slopes over the overlap): a flat overlap pins
@@ -248,7 +250,8 @@ def _pair_shift(fi: np.ndarray, fj: np.ndarray, step: float, search: float, min_
         if ok.sum() < min_overlap:
             continue
         d = fi[ok] - g[ok]
-        costs[m] = np.mean(np.square(d - np.median(d)))
+        # no free vertical offset: on a sloping skyline an offset and a shift look alike
+        costs[m] = np.mean(np.square(d))
         if costs[m] < best[0]:
             best = (costs[m], m)
     if not np.isfinite(best[0]):
@@ -268,9 +271,13 @@ def _pair_shift(fi: np.ndarray, fj: np.ndarray, step: float, search: float, min_
 
 
 def refine_pans(camera: Camera, skylines: Sequence[Skyline], pans: Sequence[float],
-                tilts: Sequence[float], pitch_deg: float = 0.0, roll_deg: float = 0.0,
+                tilts: Sequence[float],
                 options: PanRefinement = DEFAULT_REFINEMENT) -> tuple[np.ndarray, list[dict]]:
     """Pan corrections [deg] that make overlapping frames agree.
+
+    The frames are compared in the *unlevelled* body frame: a pan is a rotation about the body z
+    axis, so there a pan error is exactly an azimuth shift (after levelling it is not, and the
+    small elevation change it brings biases the shift on gently sloping overlaps).
 
     Every overlapping pair (i, j) gives a relative shift ``s_ij ~ d_j - d_i`` (search over
     ``+-search_deg`` of the median-removed squared difference, sub-sample by a parabola), weighted by
@@ -292,7 +299,7 @@ def refine_pans(camera: Camera, skylines: Sequence[Skyline], pans: Sequence[floa
     for it in range(max(options.iterations, 1)):
         if it:  # later passes only mop up what the re-projection changed
             search = min(options.search_deg, max(0.3, 10 * step))
-        fine = [_frame_fine(camera, s, p + d, t, pitch_deg, roll_deg, bins)
+        fine = [_frame_fine(camera, s, p + d, t, 0.0, 0.0, bins)
                 for s, p, d, t in zip(skylines, pans, delta, tilts)]
         pairs = []
         a = np.eye(nf) / options.prior_sigma_deg ** 2
@@ -367,7 +374,7 @@ def profile_from_skylines(acq: Acquisition, skylines: Sequence[Skyline | None], 
     sk = [skylines[i] for i in used]
     pans = np.array([acq.frames[i].pan_deg for i in used])
     tilts = np.array([acq.frames[i].tilt_deg for i in used])
-    delta, pairs = refine_pans(cam, sk, pans, tilts, pitch, roll, refine)
+    delta, pairs = refine_pans(cam, sk, pans, tilts, refine)
     pix_deg = float(np.degrees(1.0 / cam.fx))
     vals = np.full((azimuth_bins, len(used)), np.nan)
     wts = np.zeros((azimuth_bins, len(used)))
