@@ -147,12 +147,15 @@ def _match(feats, seq, range_width, n, wrap):
     return pairs
 
 
-def stitch_panorama(acq: Acquisition, images: list[np.ndarray] | None = None, *, use_nominal: bool = True):
+def stitch_panorama(acq: Acquisition, images: list[np.ndarray] | None = None, *, use_nominal: bool = True,
+                    overlays: list[np.ndarray] | None = None):
     """Equirectangular panorama of a frame set in the levelled body frame.
 
     Returns ``(rgb, valid_mask, spec, info)``: ``spec`` is the :class:`PanoramaSpec` of the result
     (azimuth of the left edge, fields of view, top elevation, all [deg]) and ``info`` records the
-    stitched and dropped frames, the pairs and the estimated pans.
+    stitched and dropped frames, the pairs and the estimated pans; ``info["overlay"]`` holds
+    ``overlays`` (per-frame RGB images) warped and cropped the same way, when given.
+    use_nominal : start the bundle adjustment from the nominal pointing (else features alone)
     """
     import cv2
 
@@ -182,39 +185,23 @@ def stitch_panorama(acq: Acquisition, images: list[np.ndarray] | None = None, *,
     scale = float(cam.fx)  # px/rad: native resolution at the image centre
     warper = cv2.PyRotationWarper("spherical", scale)
     K = cam.matrix().astype(np.float32)
-    warped, masks, corners = [], [], []
     est_pans = {}
+    r_spheres = {}
     for k, r in zip(kept, rots):
-        r_sphere = (body_to_sphere @ level @ align @ r).astype(np.float32)
-        corner, img_w = warper.warp(images[k], K, r_sphere, cv2.INTER_LINEAR, cv2.BORDER_CONSTANT)
-        _, m_w = warper.warp(np.full(images[k].shape[:2], 255, np.uint8), K, r_sphere, cv2.INTER_NEAREST,
-                             cv2.BORDER_CONSTANT)
-        warped.append(img_w)
-        masks.append(m_w > 0)
-        corners.append(corner)
+        r_spheres[k] = (body_to_sphere @ level @ align @ r).astype(np.float32)
         fwd = align @ r @ np.array([0.0, 0.0, 1.0])  # optical axis in the unlevelled body frame
         est_pans[k] = float(np.degrees(np.arctan2(fwd[0], fwd[1])))
-    x0 = min(c[0] for c in corners)
-    y0 = min(c[1] for c in corners)
-    x1 = max(c[0] + im.shape[1] for c, im in zip(corners, warped))
-    y1 = max(c[1] + im.shape[0] for c, im in zip(corners, warped))
-    acc = np.zeros((y1 - y0, x1 - x0, 3))
-    wsum = np.zeros((y1 - y0, x1 - x0))
-    for c, im, m in zip(corners, warped, masks):
-        # feather: weight by distance to the frame's edge, so seams blend and borders fade out
-        wgt = cv2.distanceTransform(m.astype(np.uint8), cv2.DIST_L2, 3)
-        wgt[wgt < 1.5] = 0  # drop the interpolated border ring (half black)
-        ys, xs = c[1] - y0, c[0] - x0
-        acc[ys:ys + im.shape[0], xs:xs + im.shape[1]] += im * wgt[..., None]
-        wsum[ys:ys + im.shape[0], xs:xs + im.shape[1]] += wgt
-    valid = wsum > 0
-    pano = np.zeros_like(acc, dtype=np.uint8)
-    pano[valid] = np.clip(acc[valid] / wsum[valid, None] + 0.5, 0, 255).astype(np.uint8)
+    pano, valid, (x0, y0) = _composite(warper, K, [images[k] for k in kept], [r_spheres[k] for k in kept])
     # crop to the valid area
     rows = np.flatnonzero(valid.any(axis=1))
     cols = np.flatnonzero(valid.any(axis=0))
     r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
     pano, valid = pano[r0:r1, c0:c1], valid[r0:r1, c0:c1]
+    overlay = None
+    if overlays is not None:
+        # the same warp and crop for other images of the frames (e.g. truth masks, for evaluation)
+        ov, _, (ox, oy) = _composite(warper, K, [overlays[k] for k in kept], [r_spheres[k] for k in kept])
+        overlay = ov[r0 + y0 - oy:r1 + y0 - oy, c0 + x0 - ox:c1 + x0 - ox]
     ux, vy = x0 + c0, y0 + r0  # sphere coordinates [px] of the crop's pixel (0, 0) centre
     spec = PanoramaSpec(
         "stitched",
@@ -234,13 +221,50 @@ def stitch_panorama(acq: Acquisition, images: list[np.ndarray] | None = None, *,
                      "elevation_top_deg": spec.elevation_top_deg, "vfov_deg": spec.vfov_deg,
                      "zero_yaw_column": zero_col},
     }
+    info["overlay"] = overlay
     return pano, valid, spec, info
+
+
+def _composite(warper, K, images, rotations):
+    """Warp ``images`` with ``rotations`` (camera -> sphere) and feather them together.
+
+    Returns ``(rgb uint8, valid mask, (x0, y0))`` with (x0, y0) the sphere pixel of the canvas's
+    pixel (0, 0).
+    """
+    import cv2
+
+    warped, masks, corners = [], [], []
+    for img, r in zip(images, rotations):
+        corner, img_w = warper.warp(img, K, r, cv2.INTER_LINEAR, cv2.BORDER_CONSTANT)
+        _, m_w = warper.warp(np.full(img.shape[:2], 255, np.uint8), K, r, cv2.INTER_NEAREST,
+                             cv2.BORDER_CONSTANT)
+        warped.append(img_w)
+        masks.append(m_w > 0)
+        corners.append(corner)
+    x0 = min(c[0] for c in corners)
+    y0 = min(c[1] for c in corners)
+    x1 = max(c[0] + im.shape[1] for c, im in zip(corners, warped))
+    y1 = max(c[1] + im.shape[0] for c, im in zip(corners, warped))
+    acc = np.zeros((y1 - y0, x1 - x0, 3))
+    wsum = np.zeros((y1 - y0, x1 - x0))
+    for c, im, m in zip(corners, warped, masks):
+        # feather: weight by distance to the frame's edge, so seams blend and borders fade out
+        wgt = cv2.distanceTransform(m.astype(np.uint8), cv2.DIST_L2, 3)
+        wgt[wgt < 1.5] = 0  # drop the interpolated border ring (half black)
+        ys, xs = c[1] - y0, c[0] - x0
+        acc[ys:ys + im.shape[0], xs:xs + im.shape[1]] += im * wgt[..., None]
+        wsum[ys:ys + im.shape[0], xs:xs + im.shape[1]] += wgt
+    valid = wsum > 0
+    pano = np.zeros(acc.shape, np.uint8)
+    pano[valid] = np.clip(acc[valid] / wsum[valid, None] + 0.5, 0, 255).astype(np.uint8)
+    return pano, valid, (x0, y0)
 
 
 def stitched_profile(acq: Acquisition, *, azimuth_bins: int = 360, detector: str | Detector = "dp",
                      images: list[np.ndarray] | None = None) -> Profile:
     """Profile of a frame set by stitching, then detecting once on the panorama."""
     pano, valid, spec, info = stitch_panorama(acq, images)
+    info.pop("overlay")
     det = get_detector(detector)
     sky = det(pano, mask=valid)
     if not np.isfinite(sky.rows).any():
