@@ -321,3 +321,15 @@ def test_cli_bad_method_and_overwrite(tmp_path):
     r = CliRunner().invoke(cli, ["profile", str(root), "-o", str(out)])
     assert r.exit_code == 2 and "--overwrite" in r.output
     assert out.read_text() == "{}"
+
+
+# --- stitching -------------------------------------------------------------------------------------
+
+def test_stitch_fails_clearly_on_featureless_frames():
+    from skyfix.stitch import stitch_panorama
+
+    cam = camera_from_fov(200, 150, 60.0)
+    acq = make_acq(cam, [0.0, 40.0, 80.0])
+    flat = [np.full((150, 200, 3), 128, np.uint8)] * 3
+    with pytest.raises(DetectionError, match="stitching failed"):
+        stitch_panorama(acq, images=flat)
