@@ -81,7 +81,7 @@ class DpOptions:
     w_height: float = 0.1
     w_diff: float = 0.05
     w_region: float = 0.08
-    texture_ratio: float = 0.3
+    texture_ratio: float = 0.35
     none_cost: float = 0.2
     switch_cost: float = 8.0
     vertical_cost: float = 0.15
@@ -310,7 +310,7 @@ def _to_float_gray(img):
 @numba.njit(cache=True)
 def _mirror_fill_columns(arr, valid, out, done):
     """Above the first and below the last valid pixel of a column, mirror the column about that
-    pixel: a mirrored edge has the same gradient as the data, so the first valid row does not look
+    pixel (at most 4 rows deep, then repeat, so no-data is not filled with distant content): a mirrored edge has the same gradient as the data, so the first valid row does not look
     smoother (more sky-like) than the rows below it, as it would with replicated values."""
     H, W = valid.shape
     for c in range(W):
@@ -324,13 +324,13 @@ def _mirror_fill_columns(arr, valid, out, done):
         if t0 < 0:
             continue
         for r in range(0, t0):
-            src = min(2 * t0 - r, t1)
+            src = min(t0 + min(t0 - r, 4), t1)
             if not valid[src, c]:
                 src = t0
             out[r, c] = arr[src, c]
             done[r, c] = True
         for r in range(t1 + 1, H):
-            src = max(2 * t1 - r, t0)
+            src = max(t1 - min(r - t1, 4), t0)
             if not valid[src, c]:
                 src = t1
             out[r, c] = arr[src, c]
@@ -390,10 +390,10 @@ def _texture(gray_s, valid_s, radius):
     gx = cv2.Sobel(gray_s, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(gray_s, cv2.CV_32F, 0, 1, ksize=3)
     mag = np.sqrt(gx * gx + gy * gy)
-    # averaged along the row only: a vertical blur would smear the sky/terrain boundary over
-    # several rows, and the region term sums rows exactly
+    # averaged mostly along the row: a tall blur would smear the sky/terrain boundary over
+    # several rows (the region term sums rows exactly); a wide one tames the sky's noise
     k = 2 * radius + 1
-    return cv2.blur(mag, (k, 1))
+    return cv2.blur(mag, (2 * k + 1, 3))
 
 
 # --- the dp detector -----------------------------------------------------------------------------
