@@ -78,14 +78,6 @@ def dev_pairs(folder):
         yield name, _read_rgb(truth_path.with_name(name + ".png")), read_skyline_json(truth_path)
 
 
-def sim_pairs(set_name, root):
-    try:
-        from skyfix.simulate import simulate_set  # noqa: F401
-    except ImportError:
-        return None
-    return None
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--methods", default="dp,bayes")
@@ -101,6 +93,11 @@ def main(argv=None):
     detect_skyline(np.full((40, 40), 128, np.uint8))
     for m in args.methods.split(","):
         run_set(pairs, m)
+    try:
+        from skyfix.simulate import simulate_set  # noqa: F401
+    except ImportError:
+        print("simulated sets (REF, CLUT, OCCL, COND): skipped, skyfix.simulate.simulate_set "
+              "is not on this branch yet")
 
 
 if __name__ == "__main__":
