@@ -4,7 +4,12 @@ Prints per image and overall: mean absolute row error [px] over columns where tr
 both have a skyline, share within 3 px and 10 px, false-skyline and missed-skyline rates over
 valid columns, and milliseconds per megapixel (wall time on this machine: noisy when shared).
 
-    PYTHONPATH=src python benchmarks/bench_detect.py [--methods dp,bayes] [--data DIR] [--sim]
+    PYTHONPATH=src python benchmarks/bench_detect.py [--methods dp,bayes] [--data DIR]
+        [--only NAME,...] [--set KEY=VALUE ...] [--cv]
+
+``--cv`` adds a leave-one-image-out table for ``dp``: for each image, the sky classifier is
+retrained (same recipe as ``scripts/train_sky_model.py``) on the other labelled images and the
+held-out image is detected with that model. Slow (one training per image).
 """
 
 from __future__ import annotations
@@ -51,14 +56,18 @@ def _fmt(name, s, ms_per_mp):
 HEADER = f"{'image':>10s} {'MAE px':>8s} {'<=3px%':>7s} {'<=10px%':>7s} {'false%':>7s} {'miss%':>7s} {'ms/MP':>8s}"
 
 
-def run_set(pairs, method, out=sys.stdout, per_image=True):
-    """pairs: iterable of (name, image array, truth Skyline). Returns (pooled score, ms/MP)."""
+def run_set(pairs, method, out=sys.stdout, per_image=True, models=None, title="", **options):
+    """pairs: iterable of (name, image array, truth Skyline); models: optional {name: SkyModel}
+    (held-out models for cross-validation). Returns (pooled score, ms/MP)."""
     scores, t_tot, mp_tot = [], 0.0, 0.0
-    print(f"-- method {method}", file=out)
+    print(f"-- method {method} {title}", file=out)
     print(HEADER, file=out)
     for name, img, truth in pairs:
+        kw = dict(options)
+        if models is not None:
+            kw["model"] = models[name]
         t0 = time.perf_counter()
-        pred = detect_skyline(img, method=method)
+        pred = detect_skyline(img, method=method, **kw)
         dt = time.perf_counter() - t0
         mp = img.shape[0] * img.shape[1] / 1e6
         s = score_skyline(pred, truth)
@@ -78,12 +87,19 @@ def dev_pairs(folder):
         yield name, _read_rgb(truth_path.with_name(name + ".png")), read_skyline_json(truth_path)
 
 
-def sim_pairs(set_name, root):
-    try:
-        from skyfix.simulate import simulate_set  # noqa: F401
-    except ImportError:
-        return None
-    return None
+def loo_models(folder, names):
+    """{name: sky model trained on every labelled image of ``folder`` except ``name``}."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    from train_sky_model import read_labelled
+
+    from skyfix.skymodel import fit_sky_model, training_pixels
+
+    parts = {name: training_pixels(img, sky) for name, img, sky in read_labelled(folder)}
+    models = {}
+    for name in names:
+        models[name], _ = fit_sky_model([p for n, p in parts.items() if n != name])
+        print(f"   trained held-out model for {name}", file=sys.stderr, flush=True)
+    return models
 
 
 def main(argv=None):
@@ -91,7 +107,16 @@ def main(argv=None):
     ap.add_argument("--methods", default="dp,bayes")
     ap.add_argument("--data", default=str(DEV))
     ap.add_argument("--only", default="", help="comma-separated image names")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a detector option (dp only), e.g. --set w_region=0.1")
+    ap.add_argument("--cv", action="store_true",
+                    help="also a leave-one-image-out table (retrains the sky model per image)")
+    ap.add_argument("--no-all", action="store_true", help="skip the shipped-model tables")
     args = ap.parse_args(argv)
+    options = {}
+    for kv in args.set:
+        k, v = kv.split("=", 1)
+        options[k] = type(getattr(__import__("skyfix.detect").detect.DpOptions(), k))(v)
     folder = Path(args.data)
     if not folder.is_dir():
         raise SystemExit(f"no dev set at {folder}")
@@ -99,8 +124,17 @@ def main(argv=None):
     pairs = [p for p in dev_pairs(folder) if not only or p[0] in only]
     # warm up numba's cache so the first image is not charged for compilation
     detect_skyline(np.full((40, 40), 128, np.uint8))
-    for m in args.methods.split(","):
-        run_set(pairs, m)
+    if not args.no_all:
+        for m in args.methods.split(","):
+            run_set(pairs, m, title="(shipped model)", **(options if m == "dp" else {}))
+    if args.cv:
+        models = loo_models(folder, [p[0] for p in pairs])
+        run_set(pairs, "dp", models=models, title="(leave-one-image-out sky model)", **options)
+    try:
+        from skyfix.simulate import simulate_set  # noqa: F401
+    except ImportError:
+        print("simulated sets (REF, CLUT, OCCL, COND): skipped, skyfix.simulate.simulate_set "
+              "is not on this branch yet")
 
 
 if __name__ == "__main__":

@@ -65,8 +65,13 @@ class DpOptions:
         edge-ness, height in the image, gradient difference between neighbours)
     w_region : weight of the sky-likeness of the pixels above the skyline, per pixel of height
         (summed over the column, so it is in units of "rows")
-    texture_ratio : a pixel whose local texture is below ``texture_ratio`` times the image's
-        median texture looks like sky
+    region : ``"model"``: the region term is the learned sky classifier's log-odds
+        (:mod:`skyfix.skymodel`); ``"texture"``: a hand-set texture threshold (no model needed)
+    model_pixels : the classifier runs on a copy downscaled to at most this many pixels [px]
+    llr_clip : the classifier's per-pixel log-odds are clipped to +-``llr_clip`` [nats], so a
+        few confident mistakes cannot dominate a column
+    texture_ratio : (``region="texture"``) a pixel whose local texture is below
+        ``texture_ratio`` times the image's median texture looks like sky
     none_cost : extra cost of the no-skyline state per column (what a missing edge costs)
     switch_cost : cost of switching between skyline and no-skyline between columns
     vertical_cost : extra cost per pixel of a move within a column
@@ -81,7 +86,10 @@ class DpOptions:
     w_height: float = 0.1
     w_diff: float = 0.05
     w_region: float = 0.08
-    texture_ratio: float = 0.3
+    region: str = "model"
+    model_pixels: int = 250_000
+    llr_clip: float = 3.0
+    texture_ratio: float = 0.35
     none_cost: float = 0.2
     switch_cost: float = 8.0
     vertical_cost: float = 0.15
@@ -310,7 +318,7 @@ def _to_float_gray(img):
 @numba.njit(cache=True)
 def _mirror_fill_columns(arr, valid, out, done):
     """Above the first and below the last valid pixel of a column, mirror the column about that
-    pixel: a mirrored edge has the same gradient as the data, so the first valid row does not look
+    pixel (at most 4 rows deep, then repeat, so no-data is not filled with distant content): a mirrored edge has the same gradient as the data, so the first valid row does not look
     smoother (more sky-like) than the rows below it, as it would with replicated values."""
     H, W = valid.shape
     for c in range(W):
@@ -324,13 +332,13 @@ def _mirror_fill_columns(arr, valid, out, done):
         if t0 < 0:
             continue
         for r in range(0, t0):
-            src = min(2 * t0 - r, t1)
+            src = min(t0 + min(t0 - r, 4), t1)
             if not valid[src, c]:
                 src = t0
             out[r, c] = arr[src, c]
             done[r, c] = True
         for r in range(t1 + 1, H):
-            src = max(2 * t1 - r, t0)
+            src = max(t1 - min(r - t1, 4), t0)
             if not valid[src, c]:
                 src = t1
             out[r, c] = arr[src, c]
@@ -390,15 +398,15 @@ def _texture(gray_s, valid_s, radius):
     gx = cv2.Sobel(gray_s, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(gray_s, cv2.CV_32F, 0, 1, ksize=3)
     mag = np.sqrt(gx * gx + gy * gy)
-    # averaged along the row only: a vertical blur would smear the sky/terrain boundary over
-    # several rows, and the region term sums rows exactly
+    # averaged mostly along the row: a tall blur would smear the sky/terrain boundary over
+    # several rows (the region term sums rows exactly); a wide one tames the sky's noise
     k = 2 * radius + 1
-    return cv2.blur(mag, (k, 1))
+    return cv2.blur(mag, (2 * k + 1, 3))
 
 
 # --- the dp detector -----------------------------------------------------------------------------
 
-def _dp_costs(gray_s, valid_s, opt: DpOptions):
+def _dp_costs(gray_s, valid_s, opt: DpOptions, d=None):
     import cv2
 
     h, w = gray_s.shape
@@ -418,12 +426,14 @@ def _dp_costs(gray_s, valid_s, opt: DpOptions):
     dist = cv2.distanceTransform((~edges).astype(np.uint8), cv2.DIST_L2, 3)
     E = np.exp(-dist / 1.5).astype(np.float64)
 
-    # sky-likeness from texture of the un-equalised grey (CLAHE would lift the sky's noise)
-    tex = _texture(cv2.GaussianBlur(gray_s, (3, 3), 0.8), valid_s, 3).astype(np.float64)
-    med = np.median(tex[valid_s]) if valid_s.any() else 1.0
-    # log ratio to the sky threshold: < 0 looks like sky, > 0 like terrain; clipped so a few
-    # wild pixels cannot dominate a column
-    d = np.clip(np.log((tex + 0.05 * med + 1e-6) / (opt.texture_ratio * med + 1e-6)), -1.0, 1.0)
+    if d is None:
+        # sky-likeness from texture of the un-equalised grey (CLAHE would lift the sky's noise)
+        tex = _texture(cv2.GaussianBlur(gray_s, (3, 3), 0.8), valid_s, 3).astype(np.float64)
+        med = np.median(tex[valid_s]) if valid_s.any() else 1.0
+        # log ratio to the sky threshold: < 0 looks like sky, > 0 like terrain; clipped so a few
+        # wild pixels cannot dominate a column
+        d = np.clip(np.log((tex + 0.05 * med + 1e-6) / (opt.texture_ratio * med + 1e-6)),
+                    -1.0, 1.0)
     P = _column_prefix(d, valid_s)  # (h + 1, w)
 
     rows = np.arange(h, dtype=np.float64)[:, None]
@@ -496,7 +506,53 @@ def _refine_full(gray, valid, top_full, bottom_full, f, opt: DpOptions):
     return out
 
 
-def _detect_dp(img, valid, opt: DpOptions):
+def _sky_inputs(img, valid, gray, model_pixels):
+    """Classifier features on a copy downscaled to at most ``model_pixels`` [px].
+
+    img : the input image; valid : trusted valid pixels; gray : filled float grey.
+    Returns (X (hm, wm, k) float32, valid_m (hm, wm) bool, fm the integer downscale factor).
+    """
+    from .skymodel import sky_features
+
+    H, W = gray.shape
+    fm = _downscale_factor(H, W, model_pixels)
+    g_m = _downscale(gray, fm)
+    v_m = _downscale_valid(valid, fm)
+    # chroma needs no filling: it is per pixel, and invalid pixels never enter the region term
+    rgb_m = _downscale(np.asarray(img[..., :3], np.float32), fm) if img.ndim == 3 else None
+    return sky_features(g_m, rgb_m, v_m), v_m, fm
+
+
+def _resample_to(arr_m, fm, f, shape):
+    """Bilinear resampling of a map on the fm-downscaled grid onto the f-downscaled grid (pixel
+    centres aligned in full-resolution coordinates)."""
+    import cv2
+
+    h, w = shape
+    ys = ((np.arange(h) + 0.5) * f / fm - 0.5).astype(np.float32)
+    xs = ((np.arange(w) + 0.5) * f / fm - 0.5).astype(np.float32)
+    mx, my = np.meshgrid(xs, ys)
+    return cv2.remap(np.asarray(arr_m, np.float32), mx, my, cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+
+
+def sky_log_odds(img, valid, gray, model, model_pixels):
+    """log P(sky)/P(terrain) per pixel of the model-scale copy: (lo (hm, wm), valid_m, fm)."""
+    X, v_m, fm = _sky_inputs(img, valid, gray, model_pixels)
+    hm, wm = v_m.shape
+    lo = model.log_odds_sky(X.reshape(hm * wm, -1)).reshape(hm, wm)
+    return lo, v_m, fm
+
+
+def _resolve_model(model):
+    from .skymodel import SkyModel, load_sky_model
+
+    if isinstance(model, SkyModel):
+        return model
+    return load_sky_model(model)
+
+
+def _detect_dp(img, valid, opt: DpOptions, model=None):
     H, W = img.shape[:2]
     col_valid = valid.any(axis=0)
     valid = _trusted(valid)
@@ -504,7 +560,15 @@ def _detect_dp(img, valid, opt: DpOptions):
     f = _downscale_factor(H, W, opt.work_pixels)
     gray_s = _downscale(gray, f)
     valid_s = _downscale_valid(valid, f)
-    enter, vert, G, none, d = _dp_costs(gray_s, valid_s, opt)
+    d = None
+    if opt.region == "model":
+        lo, _, fm = sky_log_odds(img, valid, gray, _resolve_model(model), opt.model_pixels)
+        # d > 0: terrain more likely; the region cost of a skyline at r is the sum of d above r
+        d = -np.clip(_resample_to(lo, fm, f, gray_s.shape), -opt.llr_clip, opt.llr_clip)
+        d = d.astype(np.float64)
+    elif opt.region != "texture":
+        raise ParameterError(f"unknown region term {opt.region!r}: choose 'model' or 'texture'")
+    enter, vert, G, none, d = _dp_costs(gray_s, valid_s, opt, d)
     top, bottom = _dp_solve(enter, vert, G, none, 1, opt.jump_cost, opt.w_diff, opt.switch_cost)
     h, w = gray_s.shape
     # working column j covers full-res columns j f .. j f + f - 1; rows scale by f
@@ -655,13 +719,16 @@ def _detect_bayes(img, valid, opt: BayesOptions):
 
 # --- public API ----------------------------------------------------------------------------------
 
-def detect_skyline(image, *, mask=None, method: str = "dp", name: str = "", **options) -> Skyline:
+def detect_skyline(image, *, mask=None, method: str = "dp", name: str = "", model=None,
+                   **options) -> Skyline:
     """The skyline of one image.
 
     image : H x W x 3 RGB (uint8, uint16 or float in [0, 1]) or H x W grey
     mask : optional bool H x W, True where the image holds valid data
     method : ``"dp"`` (default) or ``"bayes"``
     name : image name written into the result
+    model : the sky classifier (:class:`skyfix.skymodel.SkyModel` or a path to one); None = the
+        shipped model ``skyfix/models/sky_hgb.npz``
     options : fields of :class:`DpOptions` / :class:`BayesOptions` to override
 
     Returns a :class:`Skyline`: ``rows`` [px, 0-based, first terrain row below the sky] with NaN
@@ -679,7 +746,7 @@ def detect_skyline(image, *, mask=None, method: str = "dp", name: str = "", **op
     valid = _valid_mask(img, mask, opt.no_data_black)
     H, W = img.shape[:2]
     if method == "dp":
-        rows, conf, col_valid = _detect_dp(img, valid, opt)
+        rows, conf, col_valid = _detect_dp(img, valid, opt, model)
     else:
         rows, conf, col_valid = _detect_bayes(img, valid, opt)
     return Skyline(rows=rows, width=W, height=H, image=name, confidence=conf, valid=col_valid)

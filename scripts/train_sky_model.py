@@ -1,0 +1,75 @@
+"""Train the sky-vs-terrain pixel classifier used by the ``dp`` detector's region term.
+
+Reads every labelled mosaic of the dev set (``NAME.png`` + ``NAME_label.png``, sky = RGB
+(34, 56, 19), black = no data), extracts :func:`skyfix.skymodel.training_pixels`, fits
+:func:`skyfix.skymodel.fit_sky_model` on all of them and writes the tree arrays (.npz, no pickle).
+
+    PYTHONPATH=src python scripts/train_sky_model.py \\
+        --data ../shared/data/marsscapes-dev --out src/skyfix/models/sky_hgb.npz [--overwrite]
+
+The held-out (leave-one-image-out) accuracy of this recipe is printed by
+``benchmarks/bench_detect.py --cv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def read_labelled(folder):
+    """Yield (name, RGB image, sky mask) for each NAME.png with a NAME_label.png."""
+    import cv2
+
+    from skyfix.skymodel import sky_label_mask
+
+    for lab_path in sorted(Path(folder).glob("*_label.png")):
+        name = lab_path.name[: -len("_label.png")]
+        im = cv2.imread(str(lab_path.with_name(name + ".png")), cv2.IMREAD_COLOR)
+        lab = cv2.imread(str(lab_path), cv2.IMREAD_COLOR)
+        if im is None or lab is None:
+            raise SystemExit(f"cannot read {name}.png or its label in {folder}")
+        yield name, cv2.cvtColor(im, cv2.COLOR_BGR2RGB), sky_label_mask(
+            cv2.cvtColor(lab, cv2.COLOR_BGR2RGB))
+
+
+def main(argv=None):
+    from skyfix.skymodel import fit_sky_model, training_pixels
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "marsscapes-dev"))
+    ap.add_argument("--out", default=str(ROOT / "src" / "skyfix" / "models" / "sky_hgb.npz"))
+    ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    if out.exists() and not args.overwrite:
+        raise SystemExit(f"{out} exists: pass --overwrite to replace it")
+    t0 = time.perf_counter()
+    parts = []
+    for name, img, sky in read_labelled(args.data):
+        X, y = training_pixels(img, sky)
+        parts.append((X, y))
+        print(f"{name}: {len(y)} pixels, {100 * y.mean():.1f} % sky", file=sys.stderr)
+    if not parts:
+        raise SystemExit(f"no labelled images in {args.data}")
+    model, clf = fit_sky_model(parts, seed=args.seed)
+    model.save(out)
+    print(f"wrote {out} ({out.stat().st_size / 1024:.0f} KiB, {model.roots.size} trees, "
+          f"{model.feat.size} nodes) from {len(parts)} images in "
+          f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    Xa = np.concatenate([p[0] for p in parts])
+    ref = clf.decision_function(Xa[:2000])
+    mine = model.log_odds_sky(Xa[:2000])
+    print(f"export check: max |sklearn - arrays| log-odds = {np.abs(ref - mine).max():.2e}",
+          file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
