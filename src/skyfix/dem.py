@@ -296,7 +296,7 @@ def _trim_nan_border(z: np.ndarray, transform):
             c0 += 1
         else:
             c1 -= 1
-    t = transform * Affine.translation(c0, r0)
+    t = transform @ Affine.translation(c0, r0)
     return z[r0:r1, c0:c1].copy(), t
 
 
@@ -346,3 +346,30 @@ def write_dem(path, dem: Dem) -> Path:
                            compress="deflate") as dst:
             dst.write(dem.z, 1)
     return path
+
+
+def fractal_dem(size_cells: int = 512, spacing_m: float = 30.0, *, relief_m: float = 1500.0,
+                beta: float = 3.6, seed: int = 0, x0: float = 500_000.0, y0: float = 4_200_000.0,
+                crs: str = "EPSG:32611") -> Dem:
+    """Mountain-like terrain by spectral synthesis (power spectrum ~ f**-beta), for demos and tests
+    when no real DEM is at hand.
+
+    size_cells : grid size (square); spacing_m : [m] cell size; relief_m : [m] peak-to-trough range
+    beta : spectral slope (3.4 to 3.8 looks like eroded mountains); seed : reproducible terrain
+    x0, y0 : [m] coordinates of the north-west pixel centre in ``crs``
+    """
+    rng = np.random.default_rng(seed)
+    n = int(size_cells)
+    fy = np.fft.fftfreq(n)[:, None]
+    fx = np.fft.rfftfreq(n)[None, :]
+    f = np.hypot(fx, fy)
+    f[0, 0] = 1.0
+    amp = f ** (-beta / 2.0)
+    amp[0, 0] = 0.0
+    phase = rng.uniform(0, 2 * np.pi, amp.shape)
+    z = np.fft.irfft2(amp * np.exp(1j * phase), s=(n, n))
+    # Sharpen crests a little (eroded ranges have sharp ridges and rounded valleys).
+    z = (z - z.min()) / (z.max() - z.min())
+    z = z ** 1.5
+    z = (z - z.min()) / (z.max() - z.min()) * relief_m + 1000.0
+    return Dem.from_array(z.astype(np.float32), spacing_m, x0=x0, y0=y0, crs=crs)

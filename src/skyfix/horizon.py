@@ -75,7 +75,7 @@ def _check(dem: Dem, x, y, camera_height_m, azimuth_bins, max_distance_m):
 
 def render_horizons(dem: Dem, x, y, *, camera_height_m: float = 1.5, planet="earth",
                     azimuth_bins: int = 360, max_distance_m: float | None = None,
-                    skip_tol_deg: float = 0.002) -> HorizonBatch:
+                    skip_tol_deg: float = 0.001) -> HorizonBatch:
     """Skylines at many points (parallel over points with numba's threads).
 
     x, y : [m] positions in the DEM's CRS (scalars or 1-D arrays)

@@ -1,0 +1,107 @@
+"""Skyline detection on the real dev set (and simulated sets when the simulator exists).
+
+Prints per image and overall: mean absolute row error [px] over columns where truth and detection
+both have a skyline, share within 3 px and 10 px, false-skyline and missed-skyline rates over
+valid columns, and milliseconds per megapixel (wall time on this machine: noisy when shared).
+
+    PYTHONPATH=src python benchmarks/bench_detect.py [--methods dp,bayes] [--data DIR] [--sim]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from skyfix.detect import combine_scores, detect_skyline, score_skyline
+from skyfix.formats import read_skyline_json
+
+def _find_dev() -> Path:
+    # ../shared/data from the repo root; a git worktree may sit one level deeper
+    for up in Path(__file__).resolve().parents[1].parents:
+        cand = up / "shared" / "data" / "marsscapes-dev"
+        if cand.is_dir():
+            return cand
+    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "marsscapes-dev"
+
+
+DEV = _find_dev()
+
+
+def _read_rgb(path):
+    import cv2
+
+    im = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if im is None:
+        raise SystemExit(f"cannot read {path}")
+    if im.ndim == 3:
+        im = cv2.cvtColor(im[..., :3], cv2.COLOR_BGR2RGB)
+    return im
+
+
+def _fmt(name, s, ms_per_mp):
+    return (f"{name:>10s} {s['mean_abs_err_px']:8.2f} {100 * s['within_3px']:7.1f} "
+            f"{100 * s['within_10px']:7.1f} {100 * s['false_rate']:7.2f} "
+            f"{100 * s['missed_rate']:7.2f} {ms_per_mp:8.0f}")
+
+
+HEADER = f"{'image':>10s} {'MAE px':>8s} {'<=3px%':>7s} {'<=10px%':>7s} {'false%':>7s} {'miss%':>7s} {'ms/MP':>8s}"
+
+
+def run_set(pairs, method, out=sys.stdout, per_image=True):
+    """pairs: iterable of (name, image array, truth Skyline). Returns (pooled score, ms/MP)."""
+    scores, t_tot, mp_tot = [], 0.0, 0.0
+    print(f"-- method {method}", file=out)
+    print(HEADER, file=out)
+    for name, img, truth in pairs:
+        t0 = time.perf_counter()
+        pred = detect_skyline(img, method=method)
+        dt = time.perf_counter() - t0
+        mp = img.shape[0] * img.shape[1] / 1e6
+        s = score_skyline(pred, truth)
+        scores.append(s)
+        t_tot += dt
+        mp_tot += mp
+        if per_image:
+            print(_fmt(name, s, 1000 * dt / mp), file=out, flush=True)
+    tot = combine_scores(scores)
+    print(_fmt("ALL", tot, 1000 * t_tot / max(mp_tot, 1e-9)), file=out, flush=True)
+    return tot, 1000 * t_tot / max(mp_tot, 1e-9)
+
+
+def dev_pairs(folder):
+    for truth_path in sorted(Path(folder).glob("*.skyline.json")):
+        name = truth_path.name[: -len(".skyline.json")]
+        yield name, _read_rgb(truth_path.with_name(name + ".png")), read_skyline_json(truth_path)
+
+
+def sim_pairs(set_name, root):
+    try:
+        from skyfix.simulate import simulate_set  # noqa: F401
+    except ImportError:
+        return None
+    return None
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--methods", default="dp,bayes")
+    ap.add_argument("--data", default=str(DEV))
+    ap.add_argument("--only", default="", help="comma-separated image names")
+    args = ap.parse_args(argv)
+    folder = Path(args.data)
+    if not folder.is_dir():
+        raise SystemExit(f"no dev set at {folder}")
+    only = set(filter(None, args.only.split(",")))
+    pairs = [p for p in dev_pairs(folder) if not only or p[0] in only]
+    # warm up numba's cache so the first image is not charged for compilation
+    detect_skyline(np.full((40, 40), 128, np.uint8))
+    for m in args.methods.split(","):
+        run_set(pairs, m)
+
+
+if __name__ == "__main__":
+    main()

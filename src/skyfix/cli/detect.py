@@ -1,0 +1,103 @@
+"""``skyfix detect``: the skyline of one image, as JSON and optionally a plot."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from .._io import check_can_write, to_json
+from ..errors import ParameterError, SkyfixError
+
+
+def read_image(path) -> "np.ndarray":  # noqa: F821
+    """An image file as H x W x 3 RGB or H x W grey (8 or 16 bit)."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise SkyfixError(f"image {path} does not exist")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise SkyfixError(f"cannot read {path} as an image (PNG, JPEG or TIFF expected)")
+    if img.ndim == 3:
+        if img.shape[2] == 4:
+            img = img[..., :3]
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return img
+
+
+def read_mask(path, shape):
+    """A mask image: non-zero = valid data."""
+    import cv2
+
+    path = Path(path)
+    m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if m is None:
+        raise SkyfixError(f"cannot read mask {path} as an image")
+    if m.shape != tuple(shape[:2]):
+        raise ParameterError(
+            f"mask {path} is {m.shape[1]} x {m.shape[0]} px, the image {shape[1]} x {shape[0]}: "
+            "give a mask of the image's size")
+    return m > 0
+
+
+def plot_skyline(path, img, skyline):
+    """Write a PNG of the image with the detected skyline drawn over it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from .._io import atomic_path
+
+    h, w = img.shape[:2]
+    fig_w = min(20.0, max(6.0, w / 150))
+    fig, ax = plt.subplots(figsize=(fig_w, fig_w * h / w + 0.4), dpi=150)
+    ax.imshow(img, cmap="gray" if img.ndim == 2 else None, interpolation="nearest")
+    cols = np.arange(w)
+    ax.plot(cols, skyline.rows, "-", color="lime", lw=0.8, label="skyline")
+    ax.set_xlim(0, w)
+    ax.set_ylim(h, 0)
+    ax.set_axis_off()
+    n = int(np.isfinite(skyline.rows).sum())
+    ax.set_title(f"{skyline.image}: skyline in {n} of {w} columns", fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+@click.command("detect")
+@click.argument("image", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--mask", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Mask image of the same size: non-zero where the image holds data.")
+@click.option("--method", type=click.Choice(["dp", "bayes"]), default="dp", show_default=True,
+              help="dp: dense-graph dynamic programming; bayes: iterative sky/ground likelihoods.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the skyline JSON here (default: stdout).")
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write a PNG of the image with the skyline drawn over it.")
+@click.option("--overwrite", is_flag=True, help="Replace existing output files.")
+def detect(image, mask, method, output, plot, overwrite):
+    """Detect the skyline in IMAGE: per column the row of the first terrain pixel below the sky,
+    or null where no skyline is visible."""
+    from ..detect import detect_skyline
+    from ..formats import write_skyline_json
+
+    for p in (output, plot):
+        if p is not None:
+            check_can_write(p, overwrite)
+    img = read_image(image)
+    m = read_mask(mask, img.shape) if mask is not None else None
+    sky = detect_skyline(img, mask=m, method=method, name=Path(image).name)
+    if output is not None:
+        write_skyline_json(output, sky)
+    else:
+        sys.stdout.write(to_json(sky.to_dict()) + "\n")
+    if plot is not None:
+        plot_skyline(plot, img, sky)
+    n = int(sum(1 for r in sky.rows if r == r))
+    click.echo(f"{Path(image).name}: skyline in {n} of {sky.width} columns ({method})", err=True)

@@ -1,0 +1,69 @@
+"""``skyfix evaluate`` and ``skyfix evaluate-detect``."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+
+import click
+
+from .options import overwrite_option
+
+
+@click.command()
+@click.option("--dem", "dem_path", required=True, type=click.Path(dir_okay=False), help="DEM GeoTIFF.")
+@click.option("--scenario", type=click.IntRange(1, 3), required=True,
+              help="1: 7x7 km database search; 2: 40x40 m prior, DEM only; 3: heading only.")
+@click.option("--sets", default="REF", show_default=True,
+              help="Comma-separated robustness sets: REF,HREL,SCOM,LREL,CLUT,OCCL,COND.")
+@click.option("--cases", type=int, default=10, show_default=True, help="Cases per set.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--db", "db_path", type=click.Path(file_okay=False), default=None,
+              help="Skyline database (scenario 1); cases are drawn inside its grid.")
+@click.option("--area", type=float, nargs=4, default=None, metavar="XMIN YMIN XMAX YMAX",
+              help="Where cases are drawn [m] (default: the database grid, or the simulator's default).")
+@click.option("--camera-height-m", type=float, default=1.5, show_default=True)
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@overwrite_option
+def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height_m, out, overwrite):
+    """Simulate cases, run the board pipeline, and write results.csv, tables, figures and
+    report.html to OUT."""
+    from ..evaluate import EvalConfig
+    from ..evaluate import evaluate as run
+
+    cfg = EvalConfig(scenario=scenario, sets=tuple(s.strip().upper() for s in sets.split(",") if s.strip()),
+                     cases=cases, seed=seed, area=tuple(area) if area else None,
+                     camera_height_m=camera_height_m)
+    # The command that regenerates the report, as typed (for the report's own footer).
+    args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
+    command = "skyfix evaluate " + " ".join(shlex.quote(a) for a in args)
+    report = run(dem_path, cfg, out, db_path=db_path, overwrite=overwrite, command=command)
+    click.echo(f"wrote {report}")
+
+
+@click.command("evaluate-detect")
+@click.option("--images", "images_dir", required=True, type=click.Path(file_okay=False),
+              help="Folder of NAME.png with NAME.skyline.json truth (as ../shared/data/marsscapes-dev).")
+@click.option("--method", type=click.Choice(["dp", "bayes"]), default="dp", show_default=True)
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, help="Write the table as CSV.")
+@overwrite_option
+def evaluate_detect(images_dir, method, output, overwrite):
+    """Score skyline detection on labelled images: mean row error, share within 3 / 10 px,
+    false- and missed-skyline rates, milliseconds per megapixel."""
+    from .._io import atomic_path, check_can_write
+    from ..evaluate import evaluate_detection
+    from ..report import format_table
+
+    if output:
+        check_can_write(output, overwrite)
+    rows = evaluate_detection(images_dir, method=method)
+    click.echo(format_table(rows))
+    if output:
+        import csv
+
+        with atomic_path(output, suffix=".csv") as tmp:
+            with open(tmp, "w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=list(rows[0]))
+                w.writeheader()
+                w.writerows(rows)
+        click.echo(f"wrote {output}")

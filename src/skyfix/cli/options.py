@@ -1,0 +1,34 @@
+"""Click options shared by several subcommands (one definition, one help text)."""
+
+from __future__ import annotations
+
+import click
+
+from ..errors import ParameterError
+from ..planets import get_planet
+
+
+def _planet(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        return get_planet(value)
+    except ParameterError as e:
+        raise click.BadParameter(str(e)) from None
+
+
+camera_height_option = click.option(
+    "--camera-height-m", type=float, default=1.5, show_default=True,
+    help="Camera centre above the ground [m].")
+planet_option = click.option(
+    "--planet", default="earth", show_default=True, callback=_planet,
+    help="earth, mars, or a planet radius in metres (curvature; refraction 0.13 on Earth).")
+azimuth_bins_option = click.option(
+    "--azimuth-bins", type=int, default=360, show_default=True,
+    help="Number of azimuth bins over 360 degrees.")
+max_distance_option = click.option(
+    "--max-distance-m", type=float, default=None,
+    help="Longest ray [m] (default: to the DEM edge).")
+crs_option = click.option(
+    "--crs", default=None, help="Metric CRS to reproject a geographic DEM to (default: its UTM zone).")
+overwrite_option = click.option("--overwrite", is_flag=True, help="Replace existing outputs.")

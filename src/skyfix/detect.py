@@ -1,0 +1,746 @@
+"""Stage 5: the skyline in an image, or the statement that there is none.
+
+Output (:class:`skyfix.formats.Skyline`): per column the row [px, 0-based, sub-pixel] of the
+first terrain pixel below the sky, NaN where no skyline is visible (the column is all terrain,
+all sky, or holds no data), and a confidence in [0, 1].
+
+Two detectors share one exact dynamic-programming kernel (:func:`_dp_solve`, numba):
+
+``dp`` (default)
+    A dense multi-stage graph over the pixels of a downscaled working copy. A path visits one or
+    more pixels per column; it moves to the next column at -1/0/+1 row, or up/down within a
+    column (steep or vertical skyline sections). A pixel costs
+    ``w_grad (1 - |grad|) + w_edge (1 - canny) + w_height row/H``, a step between columns adds
+    ``w_diff | |grad|(r, c) - |grad|(r', c-1) |`` (the source study's four terms, on CLAHE'd,
+    smoothed grey with Canny thresholds from Otsu), and entering a column at row ``r`` adds a
+    region term: ``w_region`` times the sum, over the pixels above ``r``, of how unlike sky
+    they look (a texture likelihood ratio; the sky is smooth, terrain is not). Each column also
+    has an explicit *no-skyline* state whose cost is that of calling the whole column terrain (or
+    the whole column sky) plus ``none_cost``; switching between it and the skyline costs
+    ``switch_cost``. The exact optimum is found on the working copy, then each column is refined
+    at full resolution by a narrow band DP on the vertical intensity step.
+
+``bayes``
+    The NASA Ames formulation (sky/ground segmentation by column transitions): per-pixel
+    observations (intensity, local edge density at two scales, chroma); sky and ground
+    likelihoods start from priors (the sky is smooth and high in the image) and are re-learned
+    by a random forest from the current segmentation; the column log-likelihood of a transition
+    at each row comes from prefix sums; a Viterbi pass with a smoothness window and a no-skyline
+    state gives the segmentation; iterate until the total likelihood stops improving.
+
+Pixels outside ``mask`` and, by default, pure black (0, 0, 0) pixels are no data: they are filled
+from their nearest valid neighbour before filtering (so the mosaic border makes no edge) and a
+skyline may only lie where the pixel and the one above it are valid.
+
+:func:`score_skyline` scores a detection against a truth skyline with the metrics of
+``shared/data/README.md``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+
+import numba
+import numpy as np
+
+from .errors import ParameterError
+from .formats import Skyline
+
+METHODS = ("dp", "bayes")
+
+_BIG = 1e18
+
+
+# --- configuration -------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class DpOptions:
+    """Options of the ``dp`` detector (weights are dimensionless).
+
+    work_pixels : the image is downscaled by an integer factor to at most this many pixels for
+        the global search [px]
+    w_grad, w_edge, w_height, w_diff : the source study's terms (gradient magnitude, Canny
+        edge-ness, height in the image, gradient difference between neighbours)
+    w_region : weight of the sky-likeness of the pixels above the skyline, per pixel of height
+        (summed over the column, so it is in units of "rows")
+    texture_ratio : a pixel whose local texture is below ``texture_ratio`` times the image's
+        median texture looks like sky
+    none_cost : extra cost of the no-skyline state per column (what a missing edge costs)
+    switch_cost : cost of switching between skyline and no-skyline between columns
+    vertical_cost : extra cost per pixel of a move within a column
+    jump_cost : cost of a one-row change between columns
+    refine_band : half-height of the full-resolution refinement band, in working-scale rows
+    no_data_black : treat (0, 0, 0) pixels as no data
+    """
+
+    work_pixels: int = 600_000
+    w_grad: float = 0.3
+    w_edge: float = 0.3
+    w_height: float = 0.1
+    w_diff: float = 0.05
+    w_region: float = 0.08
+    texture_ratio: float = 0.3
+    none_cost: float = 0.2
+    switch_cost: float = 8.0
+    vertical_cost: float = 0.15
+    jump_cost: float = 0.05
+    refine_band: float = 1.5
+    no_data_black: bool = True
+
+
+@dataclass(frozen=True)
+class BayesOptions:
+    """Options of the ``bayes`` detector.
+
+    work_pixels : working-copy size for the whole method [px]
+    window : smoothness window, the largest row change between neighbouring columns [working px]
+    jump_cost : log-likelihood cost per row of change between columns
+    switch_cost : cost of switching between skyline and no-skyline between columns
+    none_cost : extra cost of the no-skyline state per column
+    max_iter : most re-learning rounds
+    n_train : pixels sampled to train each random forest
+    seed : random seed (the forest and the sample)
+    """
+
+    work_pixels: int = 300_000
+    window: int = 4
+    jump_cost: float = 0.3
+    switch_cost: float = 10.0
+    none_cost: float = 2.0
+    max_iter: int = 5
+    n_train: int = 20_000
+    seed: int = 0
+    no_data_black: bool = True
+
+
+PRESETS = {"dp": DpOptions(), "bayes": BayesOptions()}
+
+
+# --- the DP kernel --------------------------------------------------------------------------------
+
+@numba.njit(cache=True)
+def _dp_solve(enter_cost, vert_cost, grad, none_cost, window, jump_cost, w_diff, switch_cost):
+    """Exact minimum-cost path over a column-staged graph with a no-skyline state.
+
+    enter_cost (H, W): cost of the path entering column c at row r (inf = forbidden)
+    vert_cost (H, W): cost of moving onto pixel (r, c) from (r -+ 1, c) (inf = no vertical moves)
+    grad (H, W): normalised gradient magnitude, for the neighbour-difference term
+    none_cost (W,): cost of the no-skyline state in column c
+    window: largest row change between columns; jump_cost: cost per row of change
+    Returns (path_top (W,), path_bottom (W,)): the rows the path covers in each column, -1 for
+    the no-skyline state.
+    """
+    H, W = enter_cost.shape
+    D = np.empty((H, W))
+    DN = np.empty(W)
+    # back pointers: 0..2w = from (r + k - w, c - 1); 2w+1 = from N; 2w+2 = from above (r-1, c);
+    # 2w+3 = from below (r+1, c)
+    bp = np.empty((H, W), dtype=np.int16)
+    bpn = np.empty(W, dtype=np.int8)  # 0: from N, 1: from the best skyline row
+    best_prev_row = np.empty(W, dtype=np.int64)
+    FROM_N = 2 * window + 1
+    FROM_UP = 2 * window + 2
+    FROM_DOWN = 2 * window + 3
+    for r in range(H):
+        D[r, 0] = enter_cost[r, 0]
+        bp[r, 0] = FROM_N
+    DN[0] = none_cost[0]
+    bpn[0] = 0
+    for c in range(W):
+        if c > 0:
+            # best skyline state of the previous column, for switches into N
+            bi = 0
+            bv = D[0, c - 1]
+            for r in range(1, H):
+                if D[r, c - 1] < bv:
+                    bv = D[r, c - 1]
+                    bi = r
+            best_prev_row[c] = bi
+            if DN[c - 1] <= bv + switch_cost:
+                DN[c] = DN[c - 1] + none_cost[c]
+                bpn[c] = 0
+            else:
+                DN[c] = bv + switch_cost + none_cost[c]
+                bpn[c] = 1
+            for r in range(H):
+                ec = enter_cost[r, c]
+                if ec >= _BIG:
+                    D[r, c] = _BIG
+                    bp[r, c] = FROM_N
+                    continue
+                best = DN[c - 1] + switch_cost
+                arg = FROM_N
+                g = grad[r, c]
+                for k in range(-window, window + 1):
+                    rp = r + k
+                    if rp < 0 or rp >= H:
+                        continue
+                    v = D[rp, c - 1]
+                    if v >= _BIG:
+                        continue
+                    v += jump_cost * abs(k) + w_diff * abs(g - grad[rp, c - 1])
+                    if v < best:
+                        best = v
+                        arg = k + window
+                D[r, c] = best + ec
+                bp[r, c] = arg
+        # moves within the column: one sweep down, one up (costs are non-negative, so a path
+        # never needs to reverse direction inside a column)
+        for r in range(1, H):
+            vc = vert_cost[r, c]
+            if vc < _BIG and D[r - 1, c] + vc < D[r, c]:
+                D[r, c] = D[r - 1, c] + vc
+                bp[r, c] = FROM_UP
+        for r in range(H - 2, -1, -1):
+            vc = vert_cost[r, c]
+            if vc < _BIG and D[r + 1, c] + vc < D[r, c]:
+                D[r, c] = D[r + 1, c] + vc
+                bp[r, c] = FROM_DOWN
+    top = np.full(W, -1, dtype=np.int64)
+    bottom = np.full(W, -1, dtype=np.int64)
+    # end state
+    bi = 0
+    bv = D[0, W - 1]
+    for r in range(1, H):
+        if D[r, W - 1] < bv:
+            bv = D[r, W - 1]
+            bi = r
+    in_none = DN[W - 1] <= bv
+    r = bi
+    c = W - 1
+    while c >= 0:
+        if in_none:
+            if bpn[c] == 1 and c > 0:
+                in_none = False
+                r = best_prev_row[c]
+            c -= 1
+            continue
+        if top[c] < 0 or r < top[c]:
+            top[c] = r
+        if bottom[c] < 0 or r > bottom[c]:
+            bottom[c] = r
+        a = bp[r, c]
+        if a == FROM_UP:
+            r -= 1
+        elif a == FROM_DOWN:
+            r += 1
+        elif a == FROM_N:
+            in_none = True
+            c -= 1
+        else:
+            r = r + a - window
+            c -= 1
+    return top, bottom
+
+
+@numba.njit(cache=True)
+def _column_prefix(d, valid):
+    """P[r, c] = sum of d[0:r, c] over valid pixels; shape (H + 1, W)."""
+    H, W = d.shape
+    P = np.zeros((H + 1, W))
+    for c in range(W):
+        s = 0.0
+        for r in range(H):
+            if valid[r, c]:
+                s += d[r, c]
+            P[r + 1, c] = s
+    return P
+
+
+# --- shared preprocessing ------------------------------------------------------------------------
+
+def _as_gray_rgb(image):
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = img[..., :3]
+    if img.ndim == 2:
+        rgb = None
+        gray = img
+    elif img.ndim == 3 and img.shape[2] == 3:
+        rgb = img
+        gray = None
+    else:
+        raise ParameterError(
+            f"image must be H x W (grey) or H x W x 3 (RGB), got shape {img.shape}")
+    if img.shape[0] < 8 or img.shape[1] < 2:
+        raise ParameterError(f"image of {img.shape[0]} x {img.shape[1]} px is too small to search")
+    return img, gray, rgb
+
+
+def _valid_mask(img, mask, no_data_black):
+    H, W = img.shape[:2]
+    if mask is None:
+        valid = np.ones((H, W), dtype=bool)
+    else:
+        mask = np.asarray(mask)
+        if mask.shape != (H, W):
+            raise ParameterError(f"mask shape {mask.shape} does not match the image ({H}, {W})")
+        valid = mask.astype(bool)
+    if no_data_black:
+        black = (img == 0) if img.ndim == 2 else np.all(img == 0, axis=2)
+        valid &= ~black
+    return valid
+
+
+def _trusted(valid, margin=2):
+    """Valid pixels at least ``margin`` px from no-data: mosaic borders carry a dark seam and a
+    resampling overshoot that would otherwise read as a strong edge."""
+    import cv2
+
+    if valid.all() or margin <= 0:
+        return valid
+    k = np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)
+    return cv2.erode(valid.astype(np.uint8), k, borderType=cv2.BORDER_REPLICATE).astype(bool)
+
+
+def _to_float_gray(img):
+    if img.ndim == 2:
+        g = img.astype(np.float32)
+    else:
+        g = img[..., :3].astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+    if img.dtype == np.uint16:
+        g *= 255.0 / 65535.0
+    elif img.dtype.kind == "f" and g.size and np.nanmax(g) <= 1.0:
+        g *= 255.0
+    return g
+
+
+@numba.njit(cache=True)
+def _mirror_fill_columns(arr, valid, out, done):
+    """Above the first and below the last valid pixel of a column, mirror the column about that
+    pixel: a mirrored edge has the same gradient as the data, so the first valid row does not look
+    smoother (more sky-like) than the rows below it, as it would with replicated values."""
+    H, W = valid.shape
+    for c in range(W):
+        t0 = -1
+        t1 = -1
+        for r in range(H):
+            if valid[r, c]:
+                if t0 < 0:
+                    t0 = r
+                t1 = r
+        if t0 < 0:
+            continue
+        for r in range(0, t0):
+            src = min(2 * t0 - r, t1)
+            if not valid[src, c]:
+                src = t0
+            out[r, c] = arr[src, c]
+            done[r, c] = True
+        for r in range(t1 + 1, H):
+            src = max(2 * t1 - r, t0)
+            if not valid[src, c]:
+                src = t1
+            out[r, c] = arr[src, c]
+            done[r, c] = True
+
+
+def _fill_invalid(arr, valid):
+    """Replace invalid pixels from valid ones (so no-data makes no edges): mirrored along the
+    column above and below the data, nearest valid pixel elsewhere."""
+    if valid.all() or not valid.any():
+        return arr
+    from scipy import ndimage
+
+    if arr.ndim == 2:
+        out = arr.copy()
+        done = valid.copy()
+        _mirror_fill_columns(arr, valid, out, done)
+        if done.all():
+            return out
+        arr, valid = out, done
+
+    # strongly anisotropic distance: take the nearest valid pixel of the same column when there is
+    # one (replicating the edge row vertically makes no horizontal seam, which isotropic nearest
+    # filling does where two mosaic tiles meet)
+    idx = ndimage.distance_transform_edt(~valid, sampling=(1.0, 64.0), return_distances=False,
+                                         return_indices=True)
+    return arr[tuple(idx)]
+
+
+def _downscale_factor(H, W, work_pixels):
+    return max(1, int(math.ceil(math.sqrt(H * W / float(work_pixels)))))
+
+
+def _downscale(arr, f):
+    import cv2
+
+    if f == 1:
+        return arr
+    H, W = arr.shape[:2]
+    return cv2.resize(arr, (max(1, W // f), max(1, H // f)), interpolation=cv2.INTER_AREA)
+
+
+def _downscale_valid(valid, f):
+    """A working pixel is valid when all the full-resolution pixels it covers are."""
+    if f == 1:
+        return valid
+    H, W = valid.shape
+    h, w = H // f, W // f
+    v = valid[: h * f, : w * f].reshape(h, f, w, f)
+    return v.all(axis=(1, 3))
+
+
+def _texture(gray_s, valid_s, radius):
+    """Local mean of the Sobel magnitude [grey levels / px] over a (2 radius + 1)^2 box."""
+    import cv2
+
+    gx = cv2.Sobel(gray_s, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(gray_s, cv2.CV_32F, 0, 1, ksize=3)
+    mag = np.sqrt(gx * gx + gy * gy)
+    # averaged along the row only: a vertical blur would smear the sky/terrain boundary over
+    # several rows, and the region term sums rows exactly
+    k = 2 * radius + 1
+    return cv2.blur(mag, (k, 1))
+
+
+# --- the dp detector -----------------------------------------------------------------------------
+
+def _dp_costs(gray_s, valid_s, opt: DpOptions):
+    import cv2
+
+    h, w = gray_s.shape
+    g8 = np.clip(gray_s, 0, 255).astype(np.uint8)
+    clahe = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8))
+    eq = clahe.apply(g8)
+    sm = cv2.GaussianBlur(eq, (5, 5), 1.2)
+    otsu, _ = cv2.threshold(sm[valid_s] if valid_s.any() else sm, 0, 255,
+                            cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    edges = cv2.Canny(sm, 0.5 * otsu, otsu) > 0
+    gx = cv2.Sobel(sm, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(sm, cv2.CV_32F, 0, 1, ksize=3)
+    mag = np.sqrt(gx * gx + gy * gy)
+    scale = np.percentile(mag[valid_s], 99) if valid_s.any() else 1.0
+    G = np.clip(mag / max(scale, 1e-6), 0, 1).astype(np.float64)
+    # edge-ness falls off over a couple of pixels from a Canny edge
+    dist = cv2.distanceTransform((~edges).astype(np.uint8), cv2.DIST_L2, 3)
+    E = np.exp(-dist / 1.5).astype(np.float64)
+
+    # sky-likeness from texture of the un-equalised grey (CLAHE would lift the sky's noise)
+    tex = _texture(cv2.GaussianBlur(gray_s, (3, 3), 0.8), valid_s, 3).astype(np.float64)
+    med = np.median(tex[valid_s]) if valid_s.any() else 1.0
+    # log ratio to the sky threshold: < 0 looks like sky, > 0 like terrain; clipped so a few
+    # wild pixels cannot dominate a column
+    d = np.clip(np.log((tex + 0.05 * med + 1e-6) / (opt.texture_ratio * med + 1e-6)), -1.0, 1.0)
+    P = _column_prefix(d, valid_s)  # (h + 1, w)
+
+    rows = np.arange(h, dtype=np.float64)[:, None]
+    pix = opt.w_grad * (1 - G) + opt.w_edge * (1 - E) + opt.w_height * rows / h
+    # the skyline lies at row r only if r and r - 1 are valid (sky above, terrain at r)
+    ok = valid_s.copy()
+    ok[1:] &= valid_s[:-1]
+    ok[0] = False
+    enter = pix + opt.w_region * P[:-1]
+    enter = np.where(ok, enter, _BIG)
+    vert = np.where(ok, pix + opt.vertical_cost, _BIG)
+    # no skyline: the whole column terrain (region 0) or the whole column sky (P[h])
+    none = opt.none_cost + opt.w_region * np.minimum(0.0, P[h])
+    return enter, vert, G, none, d
+
+
+def _refine_full(gray, valid, top_full, bottom_full, f, opt: DpOptions):
+    """Full-resolution rows from the working-scale path: a DP on the vertical intensity step.
+
+    top_full, bottom_full (W,): full-resolution rows [px] spanned by the working-scale path in
+    each column (NaN = no skyline). The search band is that span widened by ``refine_band`` f
+    rows; the row change between columns is free within the band, so steep sections survive.
+    """
+    import cv2
+
+    H, W = gray.shape
+    have = np.isfinite(top_full)
+    out = np.full(W, np.nan)
+    if not have.any():
+        return out
+    sm = cv2.GaussianBlur(gray, (0, 0), 1.0)
+    # step between rows r - 1 and r: the skyline is at r when it is large
+    step = np.zeros_like(sm)
+    step[1:] = np.abs(sm[1:] - sm[:-1])
+    ok = valid.copy()
+    ok[1:] &= valid[:-1]
+    ok[0] = False
+    m = int(math.ceil(opt.refine_band * f)) + 1
+    a = np.where(have, np.floor(np.nan_to_num(top_full)) - m, 0).astype(np.int64)
+    b = np.where(have, np.ceil(np.nan_to_num(bottom_full)) + f - 1 + m, -1).astype(np.int64)
+    a = np.clip(a, 0, H - 1)
+    b = np.clip(b, -1, H - 1)
+    lo = int(a[have].min())
+    hi = int(b[have].max()) + 1
+    rows = np.arange(lo, hi)[:, None]
+    inband = (rows >= a[None, :]) & (rows <= b[None, :])
+    sub_ok = ok[lo:hi] & inband
+    scale = np.percentile(step[ok], 99.5) if ok.any() else 1.0
+    # prefer the coarse span (its centre) a little, so texture steps nearby do not pull the row
+    mid = 0.5 * (np.nan_to_num(top_full) + np.nan_to_num(bottom_full) + f - 1)
+    span = 0.5 * (np.nan_to_num(bottom_full) - np.nan_to_num(top_full) + f) + 1.0
+    off_c = np.clip(np.abs(rows - mid[None, :]) - span[None, :], 0, None) / max(m, 1)
+    cost = np.where(sub_ok, 1.0 - np.clip(step[lo:hi] / max(scale, 1e-6), 0, 1) + 0.3 * off_c, _BIG)
+    # columns the coarse pass called no-skyline stay so; the others follow the band optimum
+    none = np.where(have, _BIG, 0.0)
+    vert = np.full_like(cost, _BIG)
+    win = int(min(hi - lo, 2 * m + 2 * f))
+    top, _ = _dp_solve(cost, vert, np.zeros_like(cost), none, win, 0.1, 0.0, 0.0)
+    got = top >= 0
+    cols = np.flatnonzero(got)
+    r = top[got] + lo
+    # sub-pixel: parabola through the step magnitude around the chosen row
+    rm = np.clip(r - 1, 0, H - 1)
+    rp = np.clip(r + 1, 0, H - 1)
+    s0, s1, s2 = step[rm, cols], step[r, cols], step[rp, cols]
+    den = s0 - 2 * s1 + s2
+    safe = np.where(den < -1e-6, den, -1.0)
+    off = np.where(den < -1e-6, 0.5 * (s0 - s2) / safe, 0.0)
+    out[cols] = r + np.clip(off, -0.5, 0.5)
+    return out
+
+
+def _detect_dp(img, valid, opt: DpOptions):
+    H, W = img.shape[:2]
+    col_valid = valid.any(axis=0)
+    valid = _trusted(valid)
+    gray = _fill_invalid(_to_float_gray(img), valid)
+    f = _downscale_factor(H, W, opt.work_pixels)
+    gray_s = _downscale(gray, f)
+    valid_s = _downscale_valid(valid, f)
+    enter, vert, G, none, d = _dp_costs(gray_s, valid_s, opt)
+    top, bottom = _dp_solve(enter, vert, G, none, 1, opt.jump_cost, opt.w_diff, opt.switch_cost)
+    h, w = gray_s.shape
+    # working column j covers full-res columns j f .. j f + f - 1; rows scale by f
+    full_cols = np.minimum(np.arange(W) // f, w - 1)
+    top_f = np.where(top >= 0, top * float(f), np.nan)[full_cols]
+    bot_f = np.where(top >= 0, bottom * float(f), np.nan)[full_cols]
+    rows = _refine_full(gray, valid, top_f, bot_f, f, opt)
+    # confidence: edge strength at the chosen pixel times how sky-like the pixels above are
+    conf_s = np.zeros(w)
+    have = top >= 0
+    cs = np.flatnonzero(have)
+    if cs.size:
+        r = top[cs]
+        edge = G[r, cs]
+        above = np.array([np.mean(d[max(0, rr - 10):rr, c][valid_s[max(0, rr - 10):rr, c]])
+                          if rr > 0 and valid_s[max(0, rr - 10):rr, c].any() else 0.0
+                          for rr, c in zip(r, cs)])
+        conf_s[cs] = np.clip(edge, 0, 1) * np.clip(0.5 - 0.5 * above, 0, 1)
+    no = ~have
+    # no-skyline: confident when the column clearly lacks sky (mean d well above 0)
+    col_mean = np.array([d[valid_s[:, c], c].mean() if valid_s[:, c].any() else 0.0
+                         for c in range(w)])
+    conf_s[no] = np.clip(0.5 + 0.5 * np.abs(col_mean[no]), 0, 1)
+    conf = conf_s[full_cols]
+    rows[~col_valid] = np.nan
+    conf[~col_valid] = 0.0
+    return rows, conf, col_valid
+
+
+# --- the bayes detector --------------------------------------------------------------------------
+
+def _bayes_features(gray_s, rgb_s, valid_s):
+    """Per-pixel observations: intensity, edge density at two scales, chroma; (h w, k)."""
+    import cv2
+
+    h, w = gray_s.shape
+    med = np.median(gray_s[valid_s]) if valid_s.any() else 1.0
+    feats = [gray_s / max(med, 1e-6)]
+    sm = cv2.GaussianBlur(gray_s, (3, 3), 0.8)
+    gx = cv2.Sobel(sm, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(sm, cv2.CV_32F, 0, 1, ksize=3)
+    mag = np.sqrt(gx * gx + gy * gy)
+    mmed = np.median(mag[valid_s]) if valid_s.any() else 1.0
+    for k in (5, 15):
+        feats.append(np.log1p(cv2.blur(mag, (k, k)) / max(mmed, 1e-6)))
+    if rgb_s is not None:
+        s = rgb_s.astype(np.float32).sum(axis=2) + 1.0
+        feats.append(rgb_s[..., 0] / s)
+        feats.append(rgb_s[..., 2] / s)
+    return np.stack([np.asarray(f, np.float32) for f in feats], axis=-1).reshape(h * w, -1)
+
+
+def _detect_bayes(img, valid, opt: BayesOptions):
+    from sklearn.ensemble import RandomForestClassifier
+
+    H, W = img.shape[:2]
+    col_valid = valid.any(axis=0)
+    valid = _trusted(valid)
+    gray = _fill_invalid(_to_float_gray(img), valid)
+    f = _downscale_factor(H, W, opt.work_pixels)
+    gray_s = _downscale(gray, f)
+    valid_s = _downscale_valid(valid, f)
+    rgb_s = None
+    if img.ndim == 3:
+        rgb_s = _downscale(_fill_invalid(img[..., :3].astype(np.float32), valid), f)
+    h, w = gray_s.shape
+    X = _bayes_features(gray_s, rgb_s, valid_s)
+    vflat = valid_s.ravel()
+
+    # priors: the sky is smooth (low edge density relative to the image) and high in the frame
+    rows = np.arange(h, dtype=np.float64)[:, None] * np.ones((1, w))
+    tex = X[:, 1].reshape(h, w).astype(np.float64)  # log1p(edge density / median)
+    llr = np.clip(3.0 * (tex - math.log1p(0.4)), -2, 2) + 0.5 * (rows / h - 0.5)
+    ok = valid_s.copy()
+    ok[1:] &= valid_s[:-1]
+    ok[0] = False
+    rng = np.random.default_rng(opt.seed)
+    prev_ll = -np.inf
+    best = None
+    for it in range(opt.max_iter):
+        # llr > 0: terrain more likely. Cost of transition at r = sum of llr above r (sky there)
+        # minus the sum below (terrain there) = 2 P[r] - P[h] up to the constant P[h].
+        P = _column_prefix(llr, valid_s)
+        enter = np.where(ok, P[:-1], _BIG)
+        none = opt.none_cost + np.minimum(0.0, P[h])
+        vert = np.full_like(enter, _BIG)
+        top, _ = _dp_solve(enter, vert, np.zeros_like(enter), none, opt.window, opt.jump_cost,
+                           0.0, opt.switch_cost)
+        # total cost of this segmentation under the current likelihoods (lower is better)
+        cols = np.arange(w)
+        tot = np.where(top >= 0, P[np.maximum(top, 0), cols], none - opt.none_cost).sum()
+        ll = -tot
+        if best is not None and ll <= prev_ll + 1e-3 * abs(prev_ll):
+            break
+        prev_ll = ll
+        best = top
+        # labels from the current segmentation: sky above the skyline (or everywhere in an
+        # all-sky column), terrain below
+        sky = np.zeros((h, w), dtype=bool)
+        for c in range(w):
+            if top[c] >= 0:
+                sky[: top[c], c] = True
+            elif P[h, c] < 0:
+                sky[:, c] = True
+        lab = sky.ravel()
+        idx = np.flatnonzero(vflat)
+        if idx.size == 0:
+            break
+        n_sky = int(lab[idx].sum())
+        if n_sky < 20 or n_sky > idx.size - 20:
+            break  # one class only: nothing to learn, keep the prior's answer
+        pick = rng.choice(idx, size=min(opt.n_train, idx.size), replace=False)
+        rf = RandomForestClassifier(n_estimators=20, max_depth=8, min_samples_leaf=20,
+                                    n_jobs=1, random_state=opt.seed)
+        rf.fit(X[pick], lab[pick])
+        proba = rf.predict_proba(X)[:, list(rf.classes_).index(True)]
+        p = np.clip(proba, 0.02, 0.98).reshape(h, w)
+        llr = np.log((1 - p) / p)
+    top = best
+    full_cols = np.minimum(np.arange(W) // f, w - 1)
+    top_f = np.where(top >= 0, top * float(f), np.nan)
+    # the smoothness window lets the coarse path jump: widen the band to the neighbours' rows
+    lo_f = np.copy(top_f)
+    hi_f = np.copy(top_f)
+    lo_f[1:] = np.fmin(lo_f[1:], top_f[:-1])
+    hi_f[:-1] = np.fmax(hi_f[:-1], top_f[1:])
+    lo_f[~np.isfinite(top_f)] = np.nan
+    hi_f[~np.isfinite(top_f)] = np.nan
+    rows = _refine_full(gray, valid, lo_f[full_cols], hi_f[full_cols], f, DpOptions())
+    p_sky = 1 / (1 + np.exp(llr))
+    conf_s = np.empty(w)
+    for c in range(w):
+        v = valid_s[:, c]
+        if not v.any():
+            conf_s[c] = 0.0
+        elif top[c] >= 0:
+            r = top[c]
+            a = p_sky[max(0, r - 5):r, c].mean() if r > 0 else 0.5
+            b = 1 - p_sky[r:r + 5, c].mean()
+            conf_s[c] = float(np.clip(a * b, 0, 1))
+        else:
+            conf_s[c] = float(np.clip(1 - p_sky[v, c].max() + 0.0, 0, 1))
+    conf = conf_s[full_cols]
+    rows[~col_valid] = np.nan
+    conf[~col_valid] = 0.0
+    return rows, conf, col_valid
+
+
+# --- public API ----------------------------------------------------------------------------------
+
+def detect_skyline(image, *, mask=None, method: str = "dp", name: str = "", **options) -> Skyline:
+    """The skyline of one image.
+
+    image : H x W x 3 RGB (uint8, uint16 or float in [0, 1]) or H x W grey
+    mask : optional bool H x W, True where the image holds valid data
+    method : ``"dp"`` (default) or ``"bayes"``
+    name : image name written into the result
+    options : fields of :class:`DpOptions` / :class:`BayesOptions` to override
+
+    Returns a :class:`Skyline`: ``rows`` [px, 0-based, first terrain row below the sky] with NaN
+    where no skyline is visible, ``confidence`` in [0, 1], ``valid`` = columns with any valid
+    pixel. Raises :class:`ParameterError` on a bad image, mask, method or option.
+    """
+    if method not in PRESETS:
+        raise ParameterError(f"unknown detection method {method!r}: choose one of {', '.join(METHODS)}")
+    base = PRESETS[method]
+    try:
+        opt = replace(base, **options)
+    except TypeError as e:
+        raise ParameterError(f"bad option for method {method!r}: {e}") from None
+    img, _, _ = _as_gray_rgb(image)
+    valid = _valid_mask(img, mask, opt.no_data_black)
+    H, W = img.shape[:2]
+    if method == "dp":
+        rows, conf, col_valid = _detect_dp(img, valid, opt)
+    else:
+        rows, conf, col_valid = _detect_bayes(img, valid, opt)
+    return Skyline(rows=rows, width=W, height=H, image=name, confidence=conf, valid=col_valid)
+
+
+# --- scoring -------------------------------------------------------------------------------------
+
+def score_skyline(pred: Skyline, truth: Skyline, *, tol_px: tuple[float, float] = (3.0, 10.0)) -> dict:
+    """Score a detected skyline against the truth (``shared/data/README.md``).
+
+    Over valid columns (``truth.valid``, else ``pred.valid``, else all): ``mean_abs_err_px``
+    over columns where both have a skyline, ``within_3px`` / ``within_10px`` (shares of those
+    columns), ``false_rate`` (share of valid columns where a skyline is claimed but none is
+    there), ``missed_rate`` (a skyline is there but none claimed), and the column counts.
+    """
+    if pred.rows.shape != truth.rows.shape:
+        raise ParameterError(
+            f"detected skyline has {pred.rows.size} columns, the truth {truth.rows.size}: "
+            "score the same image")
+    n = truth.rows.size
+    if truth.valid is not None:
+        valid = np.asarray(truth.valid, bool)
+    elif pred.valid is not None:
+        valid = np.asarray(pred.valid, bool)
+    else:
+        valid = np.ones(n, bool)
+    pt = np.isfinite(pred.rows) & valid
+    tt = np.isfinite(truth.rows) & valid
+    both = pt & tt
+    err = np.abs(pred.rows[both] - truth.rows[both])
+    nv = int(valid.sum())
+    nb = int(both.sum())
+    lo, hi = tol_px
+    return {
+        "n_valid": nv,
+        "n_both": nb,
+        "n_truth": int(tt.sum()),
+        "n_false": int((pt & ~tt).sum()),
+        "n_missed": int((tt & ~pt).sum()),
+        "n_within_3px": int((err <= lo).sum()),
+        "n_within_10px": int((err <= hi).sum()),
+        "sum_abs_err_px": float(err.sum()),
+        "mean_abs_err_px": float(err.mean()) if nb else float("nan"),
+        "within_3px": float((err <= lo).mean()) if nb else float("nan"),
+        "within_10px": float((err <= hi).mean()) if nb else float("nan"),
+        "false_rate": float((pt & ~tt).sum() / nv) if nv else 0.0,
+        "missed_rate": float((tt & ~pt).sum() / nv) if nv else 0.0,
+    }
+
+
+def combine_scores(scores) -> dict:
+    """Pool per-image :func:`score_skyline` results (column-weighted)."""
+    keys = ("n_valid", "n_both", "n_truth", "n_false", "n_missed", "n_within_3px",
+            "n_within_10px", "sum_abs_err_px")
+    tot = {k: sum(s[k] for s in scores) for k in keys}
+    nb, nv = tot["n_both"], tot["n_valid"]
+    tot.update({
+        "mean_abs_err_px": tot["sum_abs_err_px"] / nb if nb else float("nan"),
+        "within_3px": tot["n_within_3px"] / nb if nb else float("nan"),
+        "within_10px": tot["n_within_10px"] / nb if nb else float("nan"),
+        "false_rate": tot["n_false"] / nv if nv else 0.0,
+        "missed_rate": tot["n_missed"] / nv if nv else 0.0,
+    })
+    return tot

@@ -1,0 +1,272 @@
+"""Stage 9: run the board pipeline on simulated cases and measure it against the requirements.
+
+For each robustness set the simulator draws cases (:func:`skyfix.simulate.simulate_set`); each
+case goes through the board segment exactly as on the rover (images -> detection -> profile ->
+locate / heading) without ever reading ``truth``, which only the scoring here looks at.
+
+Scenarios (``design.md``):
+1. after landing: full database search over the area, then DEM refinement; correct = within 5 m
+   and 2 deg;
+2. end of a traverse: 40 x 40 m prior (drift up to 20 m), DEM only, no database; correct = 1 m;
+3. along the traverse: heading only, at a position wrong by 0, 5, 10 or 20 m, heading prior
+   within +-5 deg, window +-10 deg; correct = heading within 1 deg.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import resource
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ParameterError, SkyfixError
+from .report import CaseResult
+
+log = logging.getLogger(__name__)
+
+SETS = ("REF", "HREL", "SCOM", "LREL", "CLUT", "OCCL", "COND")
+#: scenario 3's position errors [m], cycled over the cases
+HEADING_PRIOR_OFFSETS_M = (0.0, 5.0, 10.0, 20.0)
+#: scenario 2's drift [m]: the prior is the truth moved by up to this much
+DRIFT_M = 20.0
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """How to evaluate.
+
+    scenario : 1, 2 or 3; sets : robustness set names; cases : per set; seed : reproducibility
+    area : (xmin, ymin, xmax, ymax) [m] where cases are drawn (default: the database's grid for
+    scenario 1, the simulator's default area otherwise)
+    """
+
+    scenario: int
+    sets: tuple[str, ...] = ("REF",)
+    cases: int = 10
+    seed: int = 0
+    area: tuple[float, float, float, float] | None = None
+    camera_height_m: float = 1.5
+    planet: str = "earth"
+
+    def __post_init__(self):
+        if self.scenario not in (1, 2, 3):
+            raise ParameterError(f"scenario must be 1, 2 or 3, got {self.scenario}")
+        bad = [s for s in self.sets if s not in SETS]
+        if bad:
+            raise ParameterError(f"unknown set(s) {', '.join(bad)}: choose from {', '.join(SETS)}")
+        if self.cases < 1:
+            raise ParameterError(f"cases must be >= 1, got {self.cases}")
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far [MB]."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def db_area(db, margin_m: float = 0.0):
+    """(xmin, ymin, xmax, ymax) [m] of a database's position grid, shrunk by ``margin_m``."""
+    xs, ys = db.x_coords, db.y_coords
+    return (float(xs.min()) + margin_m, float(ys.min()) + margin_m,
+            float(xs.max()) - margin_m, float(ys.max()) - margin_m)
+
+
+def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.random.Generator,
+             case_index: int) -> tuple[CaseResult, dict]:
+    """One case through the board pipeline; returns the result and what the figures need."""
+    from .formats import load_acquisition, load_truth
+    from .pose import estimate_heading, locate
+    from .profile import acquisition_profile
+
+    truth = load_truth(case_dir)  # scoring only: the pipeline below never sees it
+    res = CaseResult(case=case_dir.name, set=set_name, scenario=cfg.scenario, truth_x=truth.x,
+                     truth_y=truth.y, truth_yaw_deg=truth.yaw_deg, truth_pitch_deg=truth.pitch_deg,
+                     truth_roll_deg=truth.roll_deg)
+    extra: dict = {}
+    try:
+        acq = load_acquisition(case_dir)
+        t0 = time.perf_counter()
+        profile = acquisition_profile(acq)
+        res.time_profile_s = time.perf_counter() - t0
+        extra["profile"] = profile
+        t0 = time.perf_counter()
+        if cfg.scenario == 3:
+            off = HEADING_PRIOR_OFFSETS_M[case_index % len(HEADING_PRIOR_OFFSETS_M)]
+            ang = rng.uniform(0, 2 * np.pi)
+            x, y = truth.x + off * math.sin(ang), truth.y + off * math.cos(ang)
+            head_prior = (truth.yaw_deg + rng.uniform(-5.0, 5.0)) % 360.0
+            res.prior_offset_m = off
+            hf = estimate_heading(profile, dem, x, y, head_prior, window_deg=10.0,
+                                  camera_height_m=acq.camera_height_m, planet=cfg.planet,
+                                  prior_pitch_deg=acq.prior_pitch_deg, prior_roll_deg=acq.prior_roll_deg)
+            res.fix_x, res.fix_y = x, y
+            res.fix_heading_deg, res.fix_pitch_deg, res.fix_roll_deg = hf.heading_deg, hf.pitch_deg, hf.roll_deg
+            res.heading_sigma_deg, res.confidence, res.score = hf.heading_sigma_deg, hf.confidence, hf.score
+        else:
+            kw = {}
+            if cfg.scenario == 2:
+                r, ang = DRIFT_M * math.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
+                kw = {"prior_xy": (truth.x + r * math.sin(ang), truth.y + r * math.cos(ang)),
+                      "prior_radius_m": DRIFT_M * 1.25}
+                res.prior_offset_m = r
+            fix = locate(profile, db=db if cfg.scenario == 1 else None, dem=dem,
+                         prior_pitch_deg=acq.prior_pitch_deg, prior_roll_deg=acq.prior_roll_deg,
+                         camera_height_m=acq.camera_height_m, planet=cfg.planet, **kw)
+            res.fix_x, res.fix_y, res.fix_heading_deg = fix.x, fix.y, fix.heading_deg
+            res.fix_pitch_deg, res.fix_roll_deg = fix.pitch_deg, fix.roll_deg
+            res.position_sigma_m, res.heading_sigma_deg = fix.position_sigma_m, fix.heading_sigma_deg
+            res.confidence, res.score = fix.confidence, fix.score
+            extra["fix"] = fix
+        res.time_locate_s = time.perf_counter() - t0
+    except SkyfixError as e:
+        res.status = f"{type(e).__name__}: {e}"
+        log.warning("case %s failed: %s", case_dir.name, e)
+    res.peak_rss_mb = peak_rss_mb()
+    return res, extra
+
+
+def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = False,
+             progress: bool = True, command: str = "") -> Path:
+    """Simulate ``cfg.cases`` cases per set, run them, write results.csv, tables, figures and
+    report.html under ``out``. Returns the report's path."""
+    from ._io import check_can_write
+    from .dem import load_dem
+    from .simulate import simulate_set
+
+    out = Path(out)
+    if out.exists() and any(out.iterdir()) and not overwrite:
+        check_can_write(out, overwrite)
+    out.mkdir(parents=True, exist_ok=True)
+    dem = load_dem(dem_path)
+    db = None
+    area = cfg.area
+    if cfg.scenario == 1:
+        if db_path is None:
+            raise ParameterError("scenario 1 searches a skyline database: give --db DB "
+                                 "(build one with `skyfix build-db`)")
+        from .database import open_database
+
+        db = open_database(db_path)
+        if abs(db.camera_height_m - cfg.camera_height_m) > 1e-6:
+            raise ParameterError(f"the database was built for a camera {db.camera_height_m} m high, "
+                                 f"the cases use {cfg.camera_height_m} m")
+        area = area or db_area(db, margin_m=2 * db.spacing_m)
+    results: list[CaseResult] = []
+    examples: list[tuple[CaseResult, dict, Path]] = []
+    rng = np.random.default_rng(cfg.seed + 1000 * cfg.scenario)
+    for s_i, set_name in enumerate(cfg.sets):
+        t0 = time.perf_counter()
+        case_dirs = simulate_set(dem, set_name, cfg.cases, cfg.seed + s_i, out / "cases" / set_name,
+                                 area=area, overwrite=True)
+        t_sim = (time.perf_counter() - t0) / max(len(case_dirs), 1)
+        for k, cdir in enumerate(case_dirs):
+            res, extra = run_case(Path(cdir), set_name, cfg, dem, db, rng, k)
+            res.time_simulate_s = t_sim
+            results.append(res)
+            if k < 1:
+                examples.append((res, extra, Path(cdir)))
+            if progress:
+                print(f"{set_name} {k + 1}/{len(case_dirs)}: "
+                      + (f"pos err {res.position_error_m:.2f} m, " if cfg.scenario != 3 else
+                         f"prior off {res.prior_offset_m:.0f} m, ")
+                      + f"heading err {res.heading_error_deg:.2f} deg, conf {res.confidence:.2f}"
+                      + ("" if res.status == "ok" else f" [{res.status[:60]}]"), flush=True)
+    return write_outputs(out, results, examples, cfg, dem, command=command)
+
+
+def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command: str) -> Path:
+    from .report import (format_table, heading_vs_prior_rows, plot_error_cdfs, plot_reliability,
+                         reliability_rows, summary_rows, timing_rows, write_report_html,
+                         write_results_csv)
+
+    write_results_csv(results, out / "results.csv")
+    tables = [("Results per set", summary_rows(results))]
+    if cfg.scenario == 3:
+        tables.append(("Heading error vs prior position error", heading_vs_prior_rows(results)))
+    tables.append(("Confidence reliability", reliability_rows(results)))
+    tables.append(("Time and memory per stage (rover CPU ~30x slower)", timing_rows(results, cfg.scenario)))
+    text = "\n\n".join(f"{h}\n{format_table(rows)}" for h, rows in tables)
+    (out / "tables.txt").write_text(text + "\n")
+    (out / "tables.md").write_text("\n\n".join(f"### {h}\n\n{format_table(rows, 'markdown')}"
+                                               for h, rows in tables) + "\n")
+    figs = [plot_error_cdfs(results, out / "error_cdf.png", cfg.scenario),
+            plot_reliability(results, out / "reliability.png")]
+    for res, extra, cdir in examples:
+        if "profile" in extra:
+            try:
+                figs.append(plot_skyline_overlay(out / f"overlay_{res.set}_{res.case}.png", res,
+                                                 extra["profile"], dem, cfg))
+            except SkyfixError as e:
+                log.warning("no overlay for %s: %s", res.case, e)
+    print(text)
+    intro = (f"Scenario {cfg.scenario}, sets {', '.join(cfg.sets)}, {cfg.cases} cases per set, seed "
+             f"{cfg.seed}, DEM {Path(dem.source).name}. 'correct' = within the scenario's tolerance; "
+             "confidence is the localiser's own, never told the truth.")
+    return write_report_html(out, title=f"skyfix evaluation: scenario {cfg.scenario}", intro=intro,
+                             sections=[(h, format_table(rows, "html")) for h, rows in tables],
+                             figures=figs, command=command)
+
+
+def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig) -> Path:
+    """Measured body-frame profile vs the DEM's skyline rendered at the truth and at the fix."""
+    from .horizon import render_horizons
+    from .pose import body_profile
+    from .report import _pyplot, _save
+
+    plt = _pyplot()
+    n = profile.n_bins
+    fig, ax = plt.subplots(figsize=(9, 3))
+    az = profile.azimuth_deg
+    for label, x, y, yaw, pitch, roll, style in (
+            ("DEM at truth", res.truth_x, res.truth_y, res.truth_yaw_deg, res.truth_pitch_deg,
+             res.truth_roll_deg, dict(color="tab:green", lw=2, alpha=0.6)),
+            ("DEM at fix", res.fix_x, res.fix_y, res.fix_heading_deg, res.fix_pitch_deg,
+             res.fix_roll_deg, dict(color="tab:red", lw=1, ls="--"))):
+        if not all(math.isfinite(v) for v in (x, y, yaw)):
+            continue
+        world = render_horizons(dem, [x], [y], camera_height_m=cfg.camera_height_m, planet=cfg.planet,
+                                azimuth_bins=4 * n).elevation_deg[0]
+        body = body_profile(world, yaw, np.nan_to_num(pitch), np.nan_to_num(roll), n_bins=n)
+        ax.plot(az, body, label=label, **style)
+    ax.plot(az, profile.elevation_deg, ".", ms=2, color="k", label="measured (detected)")
+    ax.set_xlim(0, 360)
+    ax.set_xlabel("azimuth from the rover's forward axis [deg]")
+    ax.set_ylabel("elevation [deg]")
+    ax.set_title(f"{res.set} {res.case}: position error {res.position_error_m:.2f} m, heading error "
+                 f"{res.heading_error_deg:.2f} deg, confidence {res.confidence:.2f}", fontsize=9)
+    ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def evaluate_detection(images_dir, out=None, *, method: str = "dp") -> list[dict]:
+    """Score the detector on every ``NAME.png`` with a ``NAME.skyline.json`` truth in a folder."""
+    from .detect import combine_scores, detect_skyline, score_skyline
+    from .formats import read_skyline_json
+    from .profile import read_rgb
+
+    images_dir = Path(images_dir)
+    if not images_dir.is_dir():
+        raise ParameterError(f"{images_dir} is not a folder of images with *.skyline.json truth")
+    truths = sorted(images_dir.glob("*.skyline.json"))
+    rows = []
+    for tpath in truths:
+        name = tpath.name[: -len(".skyline.json")]
+        img_path = images_dir / f"{name}.png"
+        if not img_path.exists():
+            continue
+        img = read_rgb(img_path)
+        t0 = time.perf_counter()
+        pred = detect_skyline(img, method=method, name=img_path.name)
+        dt = time.perf_counter() - t0
+        sc = score_skyline(pred, read_skyline_json(tpath))
+        sc = {"image": name, **sc, "ms_per_mpx": 1000 * dt / (img.shape[0] * img.shape[1] / 1e6)}
+        rows.append(sc)
+    if not rows:
+        raise ParameterError(f"no NAME.png with NAME.skyline.json in {images_dir}")
+    total = {"image": "all", **combine_scores([{k: v for k, v in r.items() if k != "image"} for r in rows])}
+    total["ms_per_mpx"] = float(np.mean([r["ms_per_mpx"] for r in rows]))
+    return rows + [total]

@@ -1,0 +1,56 @@
+"""Evaluation bookkeeping: errors, correctness, tables and the report from known results."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from skyfix.report import (CaseResult, heading_vs_prior_rows, read_results_csv, reliability_rows,
+                           summary_rows, write_report_html, write_results_csv)
+
+
+def _case(set_, dx, dyaw, conf, scenario=1, status="ok", offset=0.0):
+    return CaseResult(case=f"{set_}-{dx}", set=set_, scenario=scenario, truth_x=100.0, truth_y=200.0,
+                      truth_yaw_deg=359.5, fix_x=100.0 + dx, fix_y=200.0, fix_heading_deg=(359.5 + dyaw) % 360,
+                      confidence=conf, status=status, prior_offset_m=offset, time_profile_s=1.0, time_locate_s=2.0)
+
+
+def test_errors_wrap_heading_and_apply_scenario_tolerances():
+    c = _case("REF", 3.0, 1.5, 0.9)
+    assert c.position_error_m == pytest.approx(3.0)
+    assert c.heading_error_deg == pytest.approx(1.5)  # across north: 359.5 -> 1.0
+    assert c.correct  # scenario 1: 5 m, 2 deg
+    assert not _case("REF", 6.0, 0.0, 0.9).correct
+    assert not _case("REF", 0.5, 0.0, 0.9, scenario=2, status="no skyline").correct
+    assert _case("REF", 50.0, 0.5, 0.9, scenario=3).correct  # heading only
+    assert not _case("REF", 0.0, 1.5, 0.9, scenario=3).correct
+
+
+def test_tables_count_what_they_say(tmp_path):
+    rs = [_case("REF", 1.0, 0.1, 0.95), _case("REF", 20.0, 0.1, 0.95), _case("LREL", 2.0, 0.2, 0.5),
+          _case("LREL", 0.0, 0.0, 0.1, status="error: x")]
+    rows = {r["set"]: r for r in summary_rows(rs)}
+    assert rows["REF"]["correct_pct"] == 50.0 and rows["REF"]["conf_ge_0.9"] == 2
+    assert rows["REF"]["correct_if_conf_ge_0.9_pct"] == 50.0
+    assert rows["LREL"]["failed"] == 1 and rows["all"]["cases"] == 4
+    rel = reliability_rows(rs)
+    assert sum(r["cases"] for r in rel) == 4
+    top = rel[-1]
+    assert top["cases"] == 2 and top["observed_correct"] == 0.5
+    path = write_results_csv(rs, tmp_path / "results.csv")
+    back = read_results_csv(path)
+    assert [b.correct for b in back] == [r.correct for r in rs]
+    assert back[1].position_error_m == pytest.approx(20.0)
+    page = write_report_html(tmp_path, title="t", intro="i", sections=[("s", "<p>x</p>")], figures=[],
+                             command="skyfix evaluate")
+    assert "skyfix evaluate" in page.read_text()
+
+
+def test_heading_vs_prior_groups_by_offset():
+    rs = [_case("REF", 0, 0.5, 0.9, scenario=3, offset=10.0), _case("REF", 0, 1.5, 0.9, scenario=3, offset=10.0),
+          _case("REF", 0, 0.2, 0.9, scenario=3, offset=20.0)]
+    rows = heading_vs_prior_rows(rs)
+    assert [r["prior_offset_m"] for r in rows] == [10.0, 20.0]
+    assert rows[0]["within_1deg_pct"] == 50.0 and rows[0]["within_2deg_pct"] == 100.0
+    assert math.isclose(rows[1]["head_err_med_deg"], 0.2, abs_tol=1e-9)
