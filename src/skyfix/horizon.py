@@ -168,15 +168,17 @@ def _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, t
         bi = i >> level
         bj = j >> level
         size = 1 << level
-        if du > 0:
+        # Same near-zero threshold as the DEM-edge test: a ray along a grid line (az 90 deg has
+        # dv ~ -6e-18) whose exit would round to t itself would otherwise crawl in eps_t steps.
+        if du > 1e-15:
             tu = ((bj + 1) * size - u0) / du
-        elif du < 0:
+        elif du < -1e-15:
             tu = (bj * size - u0) / du
         else:
             tu = np.inf
-        if dv > 0:
+        if dv > 1e-15:
             tv = ((bi + 1) * size - v0) / dv
-        elif dv < 0:
+        elif dv < -1e-15:
             tv = (bi * size - v0) / dv
         else:
             tv = np.inf

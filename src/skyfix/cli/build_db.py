@@ -19,10 +19,12 @@ import click
               help="0: in this process; N: a local Dask cluster of N processes (default: one per core).")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Use an existing Dask cluster (tcp://HOST:PORT) sharing this file system.")
+@click.option("--block-positions", type=int, default=64, show_default=True,
+              help="Positions per block side: one task and one zarr chunk per block.")
 @click.option("--overwrite", is_flag=True, help="Delete an existing database and start afresh.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_distance_m, planet,
-             workers, scheduler, overwrite, no_progress):
+             workers, scheduler, block_positions, overwrite, no_progress):
     """Render the skyline at every grid position of BOUNDS from DEM into a zarr store.
 
     Killed at any point, the same command resumes where it stopped; --overwrite starts afresh.
@@ -32,7 +34,7 @@ def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_dis
     r = build_database(dem, out, bounds, spacing_m, camera_height_m=camera_height_m,
                        azimuth_bins=azimuth_bins, max_distance_m=max_distance_m, planet=planet,
                        workers=workers, scheduler=scheduler, overwrite=overwrite,
-                       progress=not no_progress)
+                       progress=not no_progress, block=block_positions)
     click.echo(f"{r.path}: {r.n_blocks} blocks ({r.built} built now, {r.resumed_from} already there), "
                f"{r.positions} skylines in {r.seconds:.1f} s ({r.skylines_per_s:,.0f}/s), "
                f"{r.size_bytes / 1e6:.1f} MB on disk")

@@ -1,0 +1,315 @@
+"""Skyline database: grid, storage, resume after a crash, reading API, verify, errors.
+
+All builds run on a small synthetic DEM (a tilted plane with two hills) so they take seconds;
+the renderer itself is tested against its slow reference in test_horizon.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from skyfix.cli.main import cli
+from skyfix.database import (MARKER_DIR, MISSING, SCALE_DEG, Grid, build_database, open_database,
+                             quantise, verify_database)
+from skyfix.dem import Dem, file_checksum, load_dem, write_dem
+from skyfix.errors import DatabaseError, OutputExistsError, OutsideDemError, ParameterError
+from skyfix.horizon import render_horizons
+from skyfix.planets import MARS
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+CELL = 10.0
+SLOPE = 0.05  # ground rises 5 m per 100 m northwards
+# The build area: 24 x 20 positions at 10 m, cut into 8 x 8 blocks -> 3 x 3 = 9 blocks.
+BOUNDS = (300.0, 300.0, 530.0, 490.0)
+SPACING = 10.0
+
+
+def _z(x, y):
+    hills = (60 * np.exp(-((x - 150) ** 2 + (y - 650) ** 2) / 80**2)
+             + 40 * np.exp(-((x - 700) ** 2 + (y - 200) ** 2) / 60**2))
+    return 100 + SLOPE * y + hills
+
+
+@pytest.fixture(scope="module")
+def dem_path(tmp_path_factory):
+    n = 81
+    x = np.arange(n) * CELL
+    y = (n - 1 - np.arange(n)) * CELL  # row 0 north
+    z = _z(x[None, :], y[:, None])
+    path = tmp_path_factory.mktemp("dem") / "hills.tif"
+    write_dem(path, Dem.from_array(z, CELL))
+    return path
+
+
+def _build(dem_path, out, **kw):
+    kw = {"workers": 0, "progress": False, "azimuth_bins": 72, "block": 8, **kw}
+    return build_database(dem_path, out, BOUNDS, SPACING, **kw)
+
+
+def _files(root) -> dict:
+    root = Path(root)
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def clean_db(dem_path, tmp_path_factory):
+    out = tmp_path_factory.mktemp("clean") / "db.zarr"
+    _build(dem_path, out)
+    return out
+
+
+# --- grid and content --------------------------------------------------------------------------
+def test_grid_convention():
+    g = Grid.from_bounds((0, 0, 7000, 7000), 5)
+    assert g.shape == (1401, 1401)  # both edges included when the spacing divides the extent
+    g = Grid.from_bounds((100, 50, 125, 62), 5, block=4)
+    assert g.shape == (3, 6) and g.n_blocks == (1, 2)
+    np.testing.assert_array_equal(g.x_coords, [100, 105, 110, 115, 120, 125])
+    np.testing.assert_array_equal(g.y_coords, [62, 57, 52])  # row 0 north, from ymax down
+    x, y = g.block_xy(0, 1)  # columns 4, 5; row-major within the block
+    np.testing.assert_array_equal(x, [120, 125, 120, 125, 120, 125])
+    np.testing.assert_array_equal(y, [62, 62, 57, 57, 52, 52])
+
+
+def test_quantise_rounds_to_nearest_step_and_marks_missing():
+    q = quantise(np.array([0.004, 0.006, -0.016, 12.3449, 12.3451, -89.996, np.nan], np.float32))
+    np.testing.assert_array_equal(q, [0, 1, -2, 1234, 1235, -9000, MISSING])
+
+
+def test_stored_skylines_match_the_renderer_and_ground_is_the_plane(clean_db, dem_path):
+    db = open_database(clean_db)
+    dem = load_dem(dem_path)
+    assert db.is_complete and db.shape == (20, 24)
+    seen = 0
+    for blk in db.iter_blocks():
+        assert blk.rows * blk.cols == blk.elevation.shape[0] <= 64  # one block at a time
+        hb = render_horizons(dem, blk.x, blk.y, camera_height_m=1.5, azimuth_bins=72)
+        ok = np.isfinite(hb.elevation_deg)
+        assert ok.all()  # hills and slope: every ray sees terrain here
+        stored = blk.elevation.astype(float) * db.scale_deg
+        assert np.abs(stored - hb.elevation_deg).max() <= SCALE_DEG / 2 + 1e-6
+        # Ground height: the closed form of the synthetic surface (bilinear error is tiny here).
+        np.testing.assert_allclose(blk.ground_z_m, _z(blk.x, blk.y), atol=0.05)
+        seen += blk.rows * blk.cols
+    assert seen == 20 * 24
+
+
+def test_positions_and_profiles_at(clean_db, dem_path):
+    db = open_database(clean_db)
+    np.testing.assert_array_equal(db.x_coords, 300 + 10 * np.arange(24))
+    np.testing.assert_array_equal(db.y_coords, 490 - 10 * np.arange(20))
+    row, col = db.index_of([303.0, 529.0], [487.0, 301.0])
+    np.testing.assert_array_equal(row, [0, 19])
+    np.testing.assert_array_equal(col, [0, 23])
+    x, y = db.xy_of(row, col)
+    np.testing.assert_array_equal(x, [300, 530])
+    np.testing.assert_array_equal(y, [490, 300])
+    # Points spread over several blocks, asked for in a scrambled order.
+    rng = np.random.default_rng(3)
+    r, c = rng.integers(0, 20, 30), rng.integers(0, 24, 30)
+    x, y = db.xy_of(r, c)
+    prof = db.profiles_at(x + 2.0, y - 2.0)  # nearest position
+    hb = render_horizons(load_dem(dem_path), x, y, azimuth_bins=72)
+    assert prof.dtype == np.float32 and prof.shape == (30, 72)
+    assert np.abs(prof - hb.elevation_deg).max() <= SCALE_DEG / 2 + 1e-6
+    np.testing.assert_allclose(db.ground_z_at(x, y), hb.ground_z_m, atol=1e-3)
+    with pytest.raises(ParameterError, match="outside the database grid"):
+        db.profiles_at([0.0], [0.0])
+
+
+def test_attributes_round_trip(dem_path, tmp_path):
+    out = tmp_path / "mars.zarr"
+    _build(dem_path, out, planet="mars", camera_height_m=2.0, max_distance_m=300.0, azimuth_bins=36)
+    db = open_database(out)
+    dem = load_dem(dem_path)
+    assert db.planet == MARS
+    assert db.camera_height_m == 2.0 and db.max_distance_m == 300.0 and db.azimuth_bins == 36
+    assert db.spacing_m == SPACING and db.scale_deg == SCALE_DEG and db.missing == MISSING
+    assert db.crs_wkt == dem.crs_wkt and db.attrs["crs_name"] == "EPSG:32611"
+    a = db.attrs
+    assert a["dem"]["sha256"] == file_checksum(dem_path)
+    assert a["grid"]["x0"] == 300.0 and a["grid"]["y0"] == 490.0 and a["grid"]["shape"] == [20, 24]
+    assert a["build"]["bounds"] == list(BOUNDS) and a["software_version"]
+    np.testing.assert_array_equal(db.azimuth_deg, np.arange(36) * 10.0)
+    # Rays capped at 300 m inside an 800 m DEM: the edge count is 0 where the DEM edge is further.
+    blk = next(db.iter_blocks())
+    assert np.all(blk.min_ray_m <= 300.0 + 1e-3)
+    # Zarr metadata carry dimension names for xarray-style readers.
+    meta = json.loads((out / "elevation" / "zarr.json").read_text())
+    assert meta["dimension_names"] == ["y", "x", "azimuth"]
+
+
+def test_edge_bins_count_rays_that_hit_the_dem_edge(dem_path, tmp_path):
+    # Without a distance limit every ray stops at the DEM edge; with a short one, none does.
+    out = tmp_path / "short.zarr"
+    _build(dem_path, out, max_distance_m=50.0, azimuth_bins=36)
+    blk = next(open_database(out).iter_blocks())
+    assert np.all(blk.edge_bins == 0) and np.allclose(blk.min_ray_m, 50.0)
+    out2 = tmp_path / "full.zarr"
+    _build(dem_path, out2, azimuth_bins=36)
+    blk = next(open_database(out2).iter_blocks())
+    assert np.all(blk.edge_bins == 36)
+    # The north-west position (300, 490) is 300 m from the west edge (x = 0) of the DEM.
+    assert blk.min_ray_m[0] == pytest.approx(300.0, abs=0.01)
+
+
+# --- executors and resume ----------------------------------------------------------------------
+def test_local_cluster_build_equals_in_process(dem_path, clean_db, tmp_path):
+    out = tmp_path / "cluster.zarr"
+    r = _build(dem_path, out, workers=2)
+    assert r.built == 9 and r.positions == 480
+    assert _files(out) == _files(clean_db)
+
+
+def test_killed_build_resumes_to_an_identical_store(dem_path, tmp_path):
+    """kill -9 a real build mid-way, rerun the same command: byte-identical to a clean build."""
+    out = tmp_path / "killed.zarr"
+    # Many small, slow blocks (3600 bins) so the kill lands mid-build.
+    args = [str(dem_path), "--out", str(out), "--bounds", *map(str, BOUNDS), "--spacing-m", "10",
+            "--azimuth-bins", "3600", "--block-positions", "4", "--workers", "0", "--no-progress"]
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    proc = subprocess.Popen([sys.executable, "-m", "skyfix.cli.main", "build-db", *args], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    markers = out / MARKER_DIR
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        if markers.is_dir() and len(list(markers.glob("r*.json"))) >= 3:
+            break
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    n_done = len(list(markers.glob("r*.json")))
+    assert 3 <= n_done < 30, f"the kill should land mid-build ({n_done} of 30 blocks done)"
+    with pytest.raises(DatabaseError, match="incomplete"):
+        open_database(out)
+    res = CliRunner().invoke(cli, ["build-db", *args])
+    assert res.exit_code == 0, res.output
+    assert "already there" in res.output
+    clean = tmp_path / "clean.zarr"
+    build_database(dem_path, clean, BOUNDS, 10, azimuth_bins=3600, block=4, workers=0, progress=False)
+    assert _files(out) == _files(clean)
+
+
+def test_resume_redoes_blocks_without_markers(dem_path, clean_db, tmp_path):
+    """Crash states: chunks written but no marker (garbage inside), zarr's temporary files."""
+    import shutil
+
+    import zarr
+
+    out = tmp_path / "crashed.zarr"
+    shutil.copytree(clean_db, out)
+    g = zarr.open_group(str(out), mode="r+")
+    g["elevation"][8:16, 8:16] = 7  # half-written block: wrong data, then died before the marker
+    (out / MARKER_DIR / "r0001_c0001.json").unlink()
+    (out / MARKER_DIR / "r0002_c0000.json").unlink()
+    (out / "elevation" / "c" / "1" / "1" / "0.abc.partial").write_bytes(b"junk")
+    r = _build(dem_path, out)
+    assert r.built == 2 and r.resumed_from == 7
+    assert _files(out) == _files(clean_db)
+
+
+# --- verify --------------------------------------------------------------------------------------
+def test_verify_passes_a_good_store_and_catches_corrupt_and_missing_blocks(dem_path, clean_db, tmp_path):
+    import shutil
+
+    import zarr
+
+    runner = CliRunner()
+    res = runner.invoke(cli, ["verify", str(clean_db), "--samples", "5", "--dem", str(dem_path)])
+    assert res.exit_code == 0 and "9 of 9 present and intact" in res.output and "OK" in res.output
+
+    bad = tmp_path / "bad.zarr"
+    shutil.copytree(clean_db, bad)
+    chunk = bad / "elevation" / "c" / "0" / "1" / "0"  # block (0, 1): flip bytes mid-file
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2: len(data) // 2 + 8] = b"\xff" * 8
+    chunk.write_bytes(bytes(data))
+    g = zarr.open_group(str(bad), mode="r+")
+    g["ground_z"][16:20, 16:24] = 0.0  # block (2, 2): valid chunk, wrong values
+    (bad / MARKER_DIR / "r0001_c0002.json").unlink()  # block (1, 2) missing
+    rep = verify_database(bad, samples=0)
+    assert rep.missing == [(1, 2)]
+    assert [b for b, _ in rep.corrupt] == [(0, 1), (2, 2)]
+    assert "ground_z" in dict(rep.corrupt)[(2, 2)]
+    res = runner.invoke(cli, ["verify", str(bad), "--samples", "0"])
+    assert res.exit_code == 2
+    assert "missing block (1, 2)" in res.output and "corrupt block (0, 1)" in res.output
+
+
+def test_verify_sample_catches_a_store_that_disagrees_with_the_dem(dem_path, clean_db, tmp_path):
+    # A consistent store (checksums match) whose skylines are not those of this DEM.
+    other = tmp_path / "other.tif"
+    d = load_dem(dem_path)
+    write_dem(other, Dem(d.z + 0.0, d.x0, d.y0, d.dx, d.dy, d.crs_wkt))
+    rep = verify_database(clean_db, dem=dem_path, samples=8)
+    assert rep.ok and rep.samples == 8 and rep.sample_max_error_deg <= SCALE_DEG / 2 + 1e-4
+    z = d.z.copy()
+    z[:, :10] += 50  # a new western ridge changes the skylines
+    write_dem(other, Dem(z, d.x0, d.y0, d.dx, d.dy, d.crs_wkt))
+    rep = verify_database(clean_db, dem=other, samples=8)
+    assert not rep.ok and "not the DEM" in rep.sample_failures[0]
+
+
+# --- info and errors -------------------------------------------------------------------------------
+def test_info_reports_metadata_completeness_and_size(clean_db):
+    res = CliRunner().invoke(cli, ["info", str(clean_db)])
+    assert res.exit_code == 0, res.output
+    assert "24 x 20 positions at 10 m" in res.output and "9 of 9 blocks (complete)" in res.output
+    res = CliRunner().invoke(cli, ["info", str(clean_db), "--json"])
+    d = json.loads(res.output)
+    assert d["complete"] and d["positions"] == 480 and d["size_bytes"] > 480 * 10
+
+
+def test_clear_errors(dem_path, clean_db, tmp_path):
+    with pytest.raises(OutsideDemError, match="outside the DEM"):
+        build_database(dem_path, tmp_path / "a.zarr", (700, 700, 900, 900), 10, workers=0,
+                       progress=False)
+    with pytest.raises(ParameterError, match="spacing must be > 0"):
+        build_database(dem_path, tmp_path / "b.zarr", BOUNDS, 0, workers=0, progress=False)
+    with pytest.raises(ParameterError, match="spacing must be > 0"):
+        build_database(dem_path, tmp_path / "b.zarr", BOUNDS, -5, workers=0, progress=False)
+    with pytest.raises(ParameterError, match="XMIN <= XMAX"):
+        build_database(dem_path, tmp_path / "b.zarr", (500, 300, 300, 490), 10, workers=0)
+    # Existing output: a finished database, a foreign file, a foreign folder.
+    with pytest.raises(OutputExistsError, match="--overwrite"):
+        _build(dem_path, clean_db)
+    f = tmp_path / "file.zarr"
+    f.write_text("not a database")
+    with pytest.raises(OutputExistsError, match="--overwrite"):
+        _build(dem_path, f)
+    d = tmp_path / "folder"
+    d.mkdir()
+    (d / "precious.txt").write_text("keep me")
+    with pytest.raises(OutputExistsError, match="not a skyfix database"):
+        _build(dem_path, d, overwrite=True)
+    assert (d / "precious.txt").exists()
+    # Incompatible resume names the parameter that differs.
+    with pytest.raises(DatabaseError, match="camera_height_m: the store has 1.5, this build asks for 2.0"):
+        _build(dem_path, clean_db, camera_height_m=2.0)
+    # And the CLI turns these into one line, exit status 2.
+    res = CliRunner().invoke(cli, ["build-db", str(dem_path), "--out", str(tmp_path / "c.zarr"),
+                                   "--bounds", "0", "0", "5000", "5000", "--spacing-m", "10", "--workers", "0"])
+    assert res.exit_code == 2 and "outside the DEM" in res.output
+    res = CliRunner().invoke(cli, ["build-db", str(dem_path), "--out", str(tmp_path / "c.zarr"),
+                                   "--bounds", *map(str, BOUNDS), "--spacing-m", "0", "--workers", "0"])
+    assert res.exit_code == 2 and "spacing must be > 0" in res.output
+    for bad in (tmp_path / "nothing.zarr", f, d):
+        with pytest.raises(DatabaseError):
+            open_database(bad)
+
+
+def test_overwrite_starts_afresh(dem_path, tmp_path):
+    out = tmp_path / "o.zarr"
+    _build(dem_path, out, azimuth_bins=36)
+    r = _build(dem_path, out, azimuth_bins=72, overwrite=True)  # other parameters, replaced
+    assert r.built == 9 and open_database(out).azimuth_bins == 72
