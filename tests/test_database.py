@@ -19,12 +19,14 @@ import pytest
 from click.testing import CliRunner
 
 from skyfix.cli.main import cli
-from skyfix.database import (MARKER_DIR, MISSING, SCALE_DEG, Grid, build_database, open_database,
-                             quantise, verify_database)
+from skyfix.database import (MARKER_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG, Grid, build_database,
+                             open_database, quantise, verify_database)
 from skyfix.dem import Dem, file_checksum, load_dem, write_dem
 from skyfix.errors import DatabaseError, OutputExistsError, OutsideDemError, ParameterError
 from skyfix.horizon import render_horizons
 from skyfix.planets import MARS
+
+pytestmark = pytest.mark.filterwarnings("ignore:Numcodecs codecs are not in the Zarr")
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 CELL = 10.0
@@ -93,7 +95,8 @@ def test_stored_skylines_match_the_renderer_and_ground_is_the_plane(clean_db, de
     seen = 0
     for blk in db.iter_blocks():
         assert blk.rows * blk.cols == blk.elevation.shape[0] <= 64  # one block at a time
-        hb = render_horizons(dem, blk.x, blk.y, camera_height_m=1.5, azimuth_bins=72)
+        hb = render_horizons(dem, blk.x, blk.y, camera_height_m=1.5, azimuth_bins=72,
+                             skip_tol_deg=db.attrs["build"]["skip_tol_deg"])
         ok = np.isfinite(hb.elevation_deg)
         assert ok.all()  # hills and slope: every ray sees terrain here
         stored = blk.elevation.astype(float) * db.scale_deg
@@ -119,7 +122,7 @@ def test_positions_and_profiles_at(clean_db, dem_path):
     r, c = rng.integers(0, 20, 30), rng.integers(0, 24, 30)
     x, y = db.xy_of(r, c)
     prof = db.profiles_at(x + 2.0, y - 2.0)  # nearest position
-    hb = render_horizons(load_dem(dem_path), x, y, azimuth_bins=72)
+    hb = render_horizons(load_dem(dem_path), x, y, azimuth_bins=72, skip_tol_deg=SKIP_TOL_DEG)
     assert prof.dtype == np.float32 and prof.shape == (30, 72)
     assert np.abs(prof - hb.elevation_deg).max() <= SCALE_DEG / 2 + 1e-6
     np.testing.assert_allclose(db.ground_z_at(x, y), hb.ground_z_m, atol=1e-3)
@@ -174,9 +177,9 @@ def test_local_cluster_build_equals_in_process(dem_path, clean_db, tmp_path):
 def test_killed_build_resumes_to_an_identical_store(dem_path, tmp_path):
     """kill -9 a real build mid-way, rerun the same command: byte-identical to a clean build."""
     out = tmp_path / "killed.zarr"
-    # Many small, slow blocks (3600 bins) so the kill lands mid-build.
+    # Many small, slow blocks (1440 bins) so the kill lands mid-build.
     args = [str(dem_path), "--out", str(out), "--bounds", *map(str, BOUNDS), "--spacing-m", "10",
-            "--azimuth-bins", "3600", "--block-positions", "4", "--workers", "0", "--no-progress"]
+            "--azimuth-bins", "1440", "--block-positions", "4", "--workers", "0", "--no-progress"]
     env = {**os.environ, "PYTHONPATH": str(SRC)}
     proc = subprocess.Popen([sys.executable, "-m", "skyfix.cli.main", "build-db", *args], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -196,7 +199,7 @@ def test_killed_build_resumes_to_an_identical_store(dem_path, tmp_path):
     assert res.exit_code == 0, res.output
     assert "already there" in res.output
     clean = tmp_path / "clean.zarr"
-    build_database(dem_path, clean, BOUNDS, 10, azimuth_bins=3600, block=4, workers=0, progress=False)
+    build_database(dem_path, clean, BOUNDS, 10, azimuth_bins=1440, block=4, workers=0, progress=False)
     assert _files(out) == _files(clean)
 
 

@@ -337,8 +337,9 @@ def _create_store(out: Path, grid: Grid, bins: int, attrs: dict) -> None:
     import zarr
     from zarr.codecs import ZstdCodec
 
+    for stale in out.parent.glob(f".{out.name}.creating-*"):  # left by a build killed right here
+        shutil.rmtree(stale, ignore_errors=True)
     tmp = out.parent / f".{out.name}.creating-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
     try:
         g = zarr.open_group(str(tmp), mode="w", zarr_format=3)
         b = grid.block
@@ -936,6 +937,12 @@ def describe(path) -> dict:
     db = open_database(path, allow_incomplete=True)
     ny, nx = db.shape
     a = db.attrs
+    size = dir_size(db.path)
+    built = 0
+    for br, bc in db.grid.blocks():
+        if (br, bc) in db._done:
+            rs, cs = db.grid.block_slices(br, bc)
+            built += (rs.stop - rs.start) * (cs.stop - cs.start)
     return {
         "path": str(db.path), "format": f"{a['format']} v{a['format_version']}",
         "software_version": a.get("software_version"), "crs": db.crs_name or "(WKT only)",
@@ -945,6 +952,7 @@ def describe(path) -> dict:
         "planet": a["planet"], "max_distance_m": db.max_distance_m,
         "scale_deg": db.scale_deg, "dem": a["dem"],
         "blocks_done": db.blocks_done, "n_blocks": db.n_blocks, "complete": db.is_complete,
-        "size_bytes": dir_size(db.path),
-        "bytes_per_skyline": dir_size(db.path) / max(1, nx * ny),
+        "size_bytes": size,
+        "positions_built": built,
+        "bytes_per_skyline": size / max(1, built),  # of the skylines built so far
     }

@@ -33,6 +33,6 @@ def info(db, as_json):
         f"dem          {d['dem']['source']} (sha256 {d['dem']['sha256'][:16]}...)",
         f"completeness {d['blocks_done']} of {d['n_blocks']} blocks"
         + (" (complete)" if d["complete"] else " (INCOMPLETE: rerun the build command to finish)"),
-        f"size         {d['size_bytes'] / 1e6:.1f} MB on disk, {d['bytes_per_skyline']:.0f} bytes per skyline",
+        f"size         {d['size_bytes'] / 1e6:.1f} MB on disk, {d['bytes_per_skyline']:.0f} bytes per built skyline",
     ]
     click.echo("\n".join(lines))
