@@ -75,8 +75,8 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
                   yaw_deg=float(rng.uniform(0, 360)), pitch_deg=float(rng.uniform(-3, 3)),
                   roll_deg=float(rng.uniform(-3, 3)))
     t0 = time.perf_counter()
-    say(f"2/4 simulating a 360 deg navcam frame set at an unknown position (truth kept aside)")
-    acq_dir = simulate_acquisition(dem, truth, out / "acquisition", camera="navcam", seed=seed,
+    say("2/4 simulating a 360 deg navcam frame set, mast tilted 15 deg up, at a hidden position")
+    acq_dir = simulate_acquisition(dem, truth, out / "acquisition", camera="navcam", seed=seed, tilt_deg=15.0,
                                    overwrite=True)
     timings["simulate_s"] = time.perf_counter() - t0
 
