@@ -267,8 +267,11 @@ def _first_hit(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, tan_el, t_end,
     level = 0
     eps_t = 1e-6
     while t < t_end:
-        u = u0 + du * t
-        v = v0 + dv * t
+        # Nudge along the ray before flooring: a point exactly on a grid line (a rover on a whole
+        # cell coordinate, a ray along a row) must land in the block it is entering, or the exit
+        # distance is 0 and the walk creeps forward by eps_t.
+        u = u0 + du * t + (1e-9 if du > 0 else -1e-9)
+        v = v0 + dv * t + (1e-9 if dv > 0 else -1e-9)
         j = int(math.floor(u))
         i = int(math.floor(v))
         if j > nx - 2:

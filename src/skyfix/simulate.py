@@ -163,29 +163,50 @@ def _palette(planet: str, dust: float):
     return ground_a, ground_b, horizon, zenith
 
 
-def _rock_layout(dem: Dem, origin, truth: Truth, az_lo: float, az_span: float, strength: float,
-                 rng: np.random.Generator) -> tuple:
-    """Boulders near the rover inside the viewed azimuths; big and close enough to cut the skyline."""
-    n = int(round(2 + 8 * strength))
-    rocks = []
-    for _ in range(n * 20):
+def _rock_layout(dem: Dem, origin, truth: Truth, camera_height_m: float, az_lo: float,
+                 az_span: float, strength: float, rng: np.random.Generator, planet) -> tuple:
+    """Boulders near the rover inside the viewed azimuths, (x, y, z, radius_h, radius_v) [m].
+
+    Half of them rise above the rendered skyline behind them (by 0.3 to 3.5 deg with strength),
+    so they cut it whatever the terrain; the rest are clutter on the ground.
+    """
+    from .horizon import render_horizons
+
+    hb = render_horizons(dem, [truth.x], [truth.y], camera_height_m=camera_height_m, planet=planet,
+                         azimuth_bins=720)
+    sky_el = np.nan_to_num(hb.elevation_deg[0], nan=0.0)
+    n = int(round(2 + 6 * strength))
+    rocks: list[tuple] = []
+    for attempt in range(n * 40):
         if len(rocks) >= n:
             break
-        az = math.radians(truth.yaw_deg + az_lo + rng.uniform(0, az_span))
-        r_h = rng.uniform(0.3, 0.6 + 1.2 * strength)
-        dist = rng.uniform(r_h + 2.0, 6.0 + 20.0 * (1.0 - 0.5 * strength))
+        az_deg = (truth.yaw_deg + az_lo + rng.uniform(0, az_span)) % 360.0
+        az = math.radians(az_deg)
+        bury = rng.uniform(0.1, 0.4)  # centre above the ground, in vertical radii
+        # Where no boulder can reach the skyline (a steep slope down), settle for clutter.
+        cutting = len(rocks) % 2 == 0 and attempt < n * 30
+        if cutting:
+            dist = rng.uniform(3.0, 6.0 + 12.0 * strength)
+        else:
+            dist = rng.uniform(2.0, 12.0)
         x = origin[0] + dist * math.sin(az)
         y = origin[1] + dist * math.cos(az)
-        if not dem.contains(x, y):
+        if not dem.contains(x, y) or not np.isfinite(g := float(dem.height_at(x, y))):
             continue
-        g = dem.height_at(x, y)
-        if not np.isfinite(g):
+        if cutting:
+            # The top must clear the line of sight to the skyline behind it.
+            el = sky_el[int(round(az_deg * 2)) % 720] + rng.uniform(0.3, 1.0 + 2.5 * strength)
+            top = origin[2] + dist * math.tan(math.radians(min(el, 60.0)))
+            r_v = (top - g) / (1.0 + bury)
+            if not 0.2 <= r_v <= 1.0 + 1.5 * strength:  # too big for a boulder here: try again
+                continue
+        else:
+            r_v = rng.uniform(0.1, 0.2 + 0.5 * strength)
+        r_h = r_v / rng.uniform(0.6, 0.9)
+        if dist < r_h + 1.5 or any(math.hypot(x - q[0], y - q[1]) < r_h + q[3] for q in rocks):
             continue
-        r_v = r_h * rng.uniform(0.55, 0.9)
-        zc = g + r_v * rng.uniform(0.1, 0.5)  # partly buried
-        if any(math.hypot(x - q[0], y - q[1]) < r_h + q[3] for q in rocks):
-            continue
-        rocks.append((x, y, float(zc), r_h, r_v))
+        zc = g + bury * r_v
+        rocks.append((x, y, zc, r_h, r_v))
     return tuple(rocks)
 
 
@@ -195,7 +216,8 @@ def make_scene(planet: str, conditions: Conditions, seed: int, *, sun_az_deg=Non
     c = conditions
     if c.clouds > 0 and planet != "earth":
         raise ParameterError("the clouds condition is for Earth only: drop it or use --planet earth")
-    haze = (40_000.0 if planet == "earth" else 20_000.0) * (1.0 - 0.93 * c.dust)
+    # Dust shortens the haze distance geometrically: 0.5 -> about 6 km on Mars, 1 -> 1.6 km.
+    haze = (40_000.0 if planet == "earth" else 20_000.0) * math.exp(-2.5 * c.dust)
     gain = 1.0 * (1.0 + 2.0 * c.overexposed) * (1.0 - 0.85 * c.dark)
     noise = 0.008 * (1.0 + 3.0 * c.dark)
     blur = 0.6 + 3.5 * c.blur
@@ -483,6 +505,8 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
     pl = get_planet(planet)
     planet_key = pl.name if pl.name in ("earth", "mars") else "earth"
     cond = _conditions(conditions)
+    if cond.clouds > 0 and planet_key != "earth":
+        raise ParameterError("the clouds condition is for Earth only: drop it or use --planet earth")
     cam = get_camera(camera) if isinstance(camera, str) else camera
     origin = camera_centre(dem, truth.x, truth.y, camera_height_m)
     out = _prepare_out(out, overwrite)
@@ -505,7 +529,7 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
     rng = np.random.default_rng([seed, 1])
     rocks = ()
     if cond.rocks > 0:
-        rocks = _rock_layout(dem, origin, truth, az_lo, az_span, cond.rocks, rng)
+        rocks = _rock_layout(dem, origin, truth, camera_height_m, az_lo, az_span, cond.rocks, rng, pl)
     if cond.glare > 0 and sun_az_deg is None:
         # Put the sun inside the view, a little above the horizon.
         if mode == "frames":
@@ -552,3 +576,145 @@ def _sun_pixel(cam: Camera, proj: Projection, scene: Scene):
     if front and -0.2 * cam.width < u < 1.2 * cam.width and -0.2 * cam.height < v < 1.2 * cam.height:
         return float(u), float(v)
     return None
+
+
+# --- robustness sets -----------------------------------------------------------------------------
+
+#: The named robustness sets of the source study's test plan.
+SETS = {
+    "REF": "nominal: level rover, no degradation",
+    "HREL": "flat, featureless horizons: the lowest-relief positions of a larger random pool",
+    "SCOM": "skyline partly outside the view: the camera tilted so the skyline leaves the frame",
+    "LREL": "pitch and roll up to +-10 deg; attitude prior 0 or noisy (1 deg)",
+    "CLUT": "clutter: dust (and clouds on Earth)",
+    "OCCL": "occlusion: boulders near the rover that the DEM lacks",
+    "COND": "bad light: glare (sun in view), over- or under-exposure",
+}
+
+
+def default_area(dem: Dem, margin_m: float | None = None) -> tuple[float, float, float, float]:
+    """The DEM's bounds minus a margin [m] (default: 10 cells or 5 % of the extent, the larger)."""
+    xmin, ymin, xmax, ymax = dem.bounds
+    ext = min(xmax - xmin, ymax - ymin)
+    m = max(10 * dem.cell_m, 0.05 * ext) if margin_m is None else float(margin_m)
+    m = min(m, 0.25 * ext)
+    return (xmin + m, ymin + m, xmax - m, ymax - m)
+
+
+def _check_area(dem: Dem, area) -> tuple[float, float, float, float]:
+    if area is None:
+        return default_area(dem)
+    try:
+        xmin, ymin, xmax, ymax = (float(a) for a in area)
+    except (TypeError, ValueError):
+        raise ParameterError("area must be four numbers XMIN YMIN XMAX YMAX [m]") from None
+    if not (xmin < xmax and ymin < ymax):
+        raise ParameterError(f"area {area} is empty: need XMIN < XMAX and YMIN < YMAX")
+    if not (dem.contains(xmin, ymin) and dem.contains(xmax, ymax)):
+        b = dem.bounds
+        raise ParameterError(f"area {tuple(area)} reaches outside the DEM bounds "
+                             f"{tuple(round(v, 1) for v in b)}: choose an area inside them")
+    return xmin, ymin, xmax, ymax
+
+
+def _draw_positions(dem: Dem, area, n: int, rng: np.random.Generator) -> np.ndarray:
+    xmin, ymin, xmax, ymax = area
+    pts = []
+    for _ in range(200 * n + 100):
+        if len(pts) >= n:
+            break
+        x, y = rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)
+        if np.isfinite(dem.height_at(x, y)):
+            pts.append((x, y))
+    if len(pts) < n:
+        raise ParameterError("could not draw positions with known heights in the area: the DEM is "
+                             "mostly void there; choose another --area")
+    return np.array(pts)
+
+
+def plan_set(dem: Dem, name: str, cases: int, seed: int, *, area=None, camera: str | Camera = "navcam",
+             mode: str = "frames", camera_height_m: float = 1.5, planet="earth") -> list[dict]:
+    """The cases of a named set: per case ``truth`` and the keyword arguments of
+    :func:`simulate_acquisition` (deterministic for ``seed``)."""
+    from .horizon import render_horizons
+
+    key = str(name).upper()
+    if key not in SETS:
+        raise ParameterError(f"unknown set {name!r}: choose one of {', '.join(SETS)}")
+    if int(cases) != cases or cases < 1:
+        raise ParameterError(f"cases must be a positive whole number, got {cases}")
+    cases = int(cases)
+    area = _check_area(dem, area)
+    rng = np.random.default_rng([int(seed), sum(map(ord, key))])
+    pl = get_planet(planet)
+    cam = get_camera(camera) if isinstance(camera, str) else camera
+    if key == "HREL":
+        pool = _draw_positions(dem, area, 6 * cases, rng)
+        hb = render_horizons(dem, pool[:, 0], pool[:, 1], camera_height_m=camera_height_m, planet=pl)
+        relief = np.nanmax(hb.elevation_deg, axis=1) - np.nanmin(hb.elevation_deg, axis=1)
+        pos = pool[np.argsort(relief, kind="stable")[:cases]]
+    else:
+        pos = _draw_positions(dem, area, cases, rng)
+    plans = []
+    for k in range(cases):
+        x, y = float(pos[k, 0]), float(pos[k, 1])
+        yaw = float(rng.uniform(0, 360))
+        kw: dict = {"seed": int(rng.integers(0, 2**31))}
+        pitch = roll = 0.0
+        if key == "SCOM":
+            hb = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=pl)
+            med = float(np.nanmedian(hb.elevation_deg[0]))
+            if mode == "frames":
+                kw["tilt_deg"] = med - cam.vfov_deg / 2 + float(rng.uniform(-1.0, 3.0))
+            else:
+                kw["elevation_top_deg"] = med + float(rng.uniform(-1.0, 1.0))
+        elif key == "LREL":
+            pitch, roll = (float(v) for v in rng.uniform(-10, 10, 2))
+            noise = rng.normal(0, 1.0, 2)
+            kw["attitude_prior"] = (0.0, 0.0) if k % 2 == 0 else (pitch + noise[0], roll + noise[1])
+        elif key == "CLUT":
+            c = {"dust": float(rng.uniform(0.3, 1.0))}
+            if pl.name == "earth":
+                c["clouds"] = float(rng.uniform(0.3, 1.0))
+            kw["conditions"] = c
+        elif key == "OCCL":
+            kw["conditions"] = {"rocks": float(rng.uniform(0.4, 1.0))}
+        elif key == "COND":
+            which = ("glare", "overexposed", "dark")[k % 3]
+            kw["conditions"] = {which: float(rng.uniform(0.5, 1.0))}
+        plans.append({"folder": f"case_{k:03d}", "truth": Truth(x, y, yaw, pitch, roll), "kwargs": kw})
+    return plans
+
+
+def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
+                 camera: str | Camera = "navcam", mode: str = "frames", frames: int | None = None,
+                 camera_height_m: float = 1.5, planet="earth", overwrite: bool = False,
+                 pano_size: tuple[int, int] = (PANO_WIDTH, PANO_HEIGHT),
+                 progress: bool = False) -> list[Path]:
+    """Render a named robustness set (:data:`SETS`) into ``out/case_NNN`` folders.
+
+    Positions are drawn uniformly (off-grid) inside ``area`` (XMIN, YMIN, XMAX, YMAX) [m], default
+    :func:`default_area`; headings uniform in [0, 360) deg; everything deterministic for ``seed``.
+    Also writes ``out/set.json`` listing the cases. Returns the case folders.
+    """
+    plans = plan_set(dem, name, cases, seed, area=area, camera=camera, mode=mode,
+                     camera_height_m=camera_height_m, planet=planet)
+    out = _prepare_out(out, overwrite)
+    folders = []
+    it = plans
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(plans, desc=f"set {name.upper()}", unit="case")
+    for p in it:
+        folders.append(simulate_acquisition(
+            dem, p["truth"], out / p["folder"], camera=camera, mode=mode, frames=frames,
+            camera_height_m=camera_height_m, planet=planet, overwrite=overwrite, pano_size=pano_size,
+            **p["kwargs"]))
+    listing = {
+        "set": name.upper(), "description": SETS[name.upper()], "seed": int(seed), "cases": [
+            {"folder": p["folder"], "truth": asdict(p["truth"]),
+             **{k: v for k, v in p["kwargs"].items()}} for p in plans],
+    }
+    write_json(out / "set.json", listing)
+    return folders

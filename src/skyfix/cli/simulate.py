@@ -1,0 +1,103 @@
+"""``skyfix simulate`` and ``skyfix simulate-set``: synthetic acquisitions with exact truth."""
+
+from __future__ import annotations
+
+import click
+
+CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [0, 1]: dust, clouds "
+                  "(Earth), rocks, glare, overexposed, dark, blur. Example: dust:0.5,rocks.")
+
+
+@click.command("simulate")
+@click.argument("dem", type=click.Path(dir_okay=False))
+@click.option("--x", "x", type=float, required=True, help="Rover easting [m] in the DEM's CRS.")
+@click.option("--y", "y", type=float, required=True, help="Rover northing [m] in the DEM's CRS.")
+@click.option("--yaw-deg", type=float, required=True, help="Heading, clockwise from grid north [deg].")
+@click.option("--pitch-deg", type=float, default=0.0, show_default=True, help="Nose up positive [deg].")
+@click.option("--roll-deg", type=float, default=0.0, show_default=True, help="Right side down positive [deg].")
+@click.option("--camera-height-m", type=float, default=1.5, show_default=True, help="Camera above ground [m].")
+@click.option("--mode", type=click.Choice(["frames", "panorama"]), default="frames", show_default=True)
+@click.option("--camera", type=click.Choice(["navcam", "wide"]), default="navcam", show_default=True,
+              help="Camera preset for frames.")
+@click.option("--pano-size", type=int, nargs=2, default=(4096, 1024), show_default=True,
+              metavar="W H", help="Panorama size [px] (360 x 90 deg).")
+@click.option("--frames", type=int, default=None, help="Number of frames (default: a full turn).")
+@click.option("--pan-start-deg", type=float, default=None, help="Pan of the first frame [deg].")
+@click.option("--pan-step-deg", type=float, default=None,
+              help="Pan step [deg] (default: 2/3 of the field of view).")
+@click.option("--tilt-deg", type=float, default=0.0, show_default=True, help="Mast tilt, up positive [deg].")
+@click.option("--prior-pitch-deg", type=float, default=None, help="Inclinometer pitch to report (default: true).")
+@click.option("--prior-roll-deg", type=float, default=None, help="Inclinometer roll to report (default: true).")
+@click.option("--conditions", default=None, help=CONDITION_HELP)
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the looks (sun, texture, noise, rocks).")
+@click.option("--planet", default="earth", show_default=True, help="earth, mars or a radius [m].")
+@click.option("--crs", default=None, help="Target CRS when the DEM must be reprojected.")
+@click.option("--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
+@click.option("--overwrite", is_flag=True, help="Replace the contents of a non-empty --out.")
+def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, camera, pano_size, frames,
+             pan_start_deg, pan_step_deg, tilt_deg, prior_pitch_deg, prior_roll_deg, conditions, seed,
+             planet, crs, out, overwrite):
+    """Render an acquisition of DEM seen from (X, Y) with its exact skylines."""
+    from ..dem import load_dem
+    from ..formats import Truth
+    from ..simulate import Conditions, simulate_acquisition
+
+    cond = Conditions.parse(conditions)  # fail on a bad name before loading anything
+    _check_out(out, overwrite)
+    d = load_dem(dem, crs=crs)
+    prior = None
+    if prior_pitch_deg is not None or prior_roll_deg is not None:
+        prior = (pitch_deg if prior_pitch_deg is None else prior_pitch_deg,
+                 roll_deg if prior_roll_deg is None else prior_roll_deg)
+    path = simulate_acquisition(
+        d, Truth(x, y, yaw_deg, pitch_deg, roll_deg), out, camera=camera, mode=mode, frames=frames,
+        pan_start_deg=pan_start_deg, pan_step_deg=pan_step_deg, tilt_deg=tilt_deg,
+        camera_height_m=camera_height_m, planet=planet, conditions=cond, seed=seed,
+        overwrite=overwrite, attitude_prior=prior, pano_size=pano_size)
+    click.echo(str(path))
+
+
+@click.command("simulate-set")
+@click.argument("dem", type=click.Path(dir_okay=False))
+@click.option("--set", "name", required=True, help="REF, HREL, SCOM, LREL, CLUT, OCCL or COND.")
+@click.option("--cases", type=int, default=10, show_default=True, help="Number of cases.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--area", type=float, nargs=4, default=None, metavar="XMIN YMIN XMAX YMAX",
+              help="Where positions are drawn [m] (default: DEM bounds minus a margin).")
+@click.option("--mode", type=click.Choice(["frames", "panorama"]), default="frames", show_default=True)
+@click.option("--camera", type=click.Choice(["navcam", "wide"]), default="navcam", show_default=True)
+@click.option("--pano-size", type=int, nargs=2, default=(4096, 1024), show_default=True,
+              metavar="W H", help="Panorama size [px] (360 x 90 deg).")
+@click.option("--frames", type=int, default=None, help="Frames per case (default: a full turn).")
+@click.option("--camera-height-m", type=float, default=1.5, show_default=True)
+@click.option("--planet", default="earth", show_default=True, help="earth, mars or a radius [m].")
+@click.option("--crs", default=None, help="Target CRS when the DEM must be reprojected.")
+@click.option("--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
+@click.option("--overwrite", is_flag=True, help="Replace the contents of a non-empty --out.")
+def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, camera_height_m, planet, crs,
+                 out, overwrite):
+    """Render a named robustness set of acquisitions (one subfolder per case)."""
+    from ..dem import load_dem
+    from ..errors import ParameterError
+    from ..simulate import SETS
+    from ..simulate import simulate_set as run_set
+
+    if name.upper() not in SETS:
+        raise ParameterError(f"unknown set {name!r}: choose one of {', '.join(SETS)}")
+    _check_out(out, overwrite)
+    d = load_dem(dem, crs=crs)
+    folders = run_set(d, name, cases, seed, out, area=area or None, camera=camera, mode=mode,
+                      frames=frames, camera_height_m=camera_height_m, planet=planet,
+                      overwrite=overwrite, pano_size=pano_size, progress=True)
+    click.echo(f"{len(folders)} cases in {out}")
+
+
+def _check_out(out, overwrite: bool) -> None:
+    """Refuse a non-empty --out before any heavy work."""
+    from pathlib import Path
+
+    from ..errors import OutputExistsError
+
+    p = Path(out)
+    if p.is_dir() and any(p.iterdir()) and not overwrite:
+        raise OutputExistsError(f"{p} is not empty: pass --overwrite to replace its contents")

@@ -1,0 +1,466 @@
+"""Simulator: geometry against the horizon renderer, attitude conventions, truth files, sets, CLI."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from skyfix.camera import Camera, camera_from_fov, direction_to_az_el, get_camera, r_world_cam
+from skyfix.cli.main import cli
+from skyfix.dem import Dem, write_dem
+from skyfix.errors import OutputExistsError, OutsideDemError, ParameterError
+from skyfix.formats import Truth, load_acquisition, load_truth, read_skyline_json
+from skyfix.horizon import render_horizons
+from skyfix.raycast import Projection, camera_centre, cast_image, column_skyline
+from skyfix.simulate import (SETS, Conditions, frame_pans, plan_set, simulate_acquisition,
+                             simulate_set)
+
+
+def hills_dem(n=160, spacing=30.0, seed=1) -> Dem:
+    """Rolling hills with a few sharp ridges: skylines at many distances and slopes."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:n, 0:n] * spacing
+    z = np.zeros((n, n))
+    ext = n * spacing
+    for _ in range(18):
+        cx, cy = rng.uniform(0, ext, 2)
+        s = rng.uniform(0.03, 0.12) * ext
+        z += rng.uniform(60, 500) * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * s * s))
+    z += 40 * np.abs(np.sin(xx / 700.0 + yy / 1300.0))  # creases: kinks on cell edges
+    return Dem.from_array(z, spacing)
+
+
+@pytest.fixture(scope="module")
+def hills():
+    return hills_dem()
+
+
+def peak_dem(peak_xy=(800.0, 500.0), height=80.0):
+    """A flat plain, 1 km square at 10 m, with one narrow peak; the rover sits at (500, 500)."""
+    n = 101
+    yy, xx = np.mgrid[0:n, 0:n] * 10.0
+    yy = (n - 1) * 10.0 - yy  # row 0 is north
+    z = height * np.exp(-((xx - peak_xy[0]) ** 2 + (yy - peak_xy[1]) ** 2) / (2 * 25.0**2))
+    return Dem.from_array(z, 10.0)
+
+
+def horizon_rows(dem, x, y, cam: Camera, yaw, pan=0.0, bins=36000):
+    """Independent prediction: the horizon renderer's profile projected through a level camera."""
+    hb = render_horizons(dem, x, y, azimuth_bins=bins)
+    xn = (np.arange(cam.width) - cam.cx) / cam.fx
+    az = (yaw + pan + np.degrees(np.arctan(xn))) % 360
+    el = np.interp(az, hb.azimuth_deg, hb.elevation_deg[0], period=360)
+    # A level pinhole column is a vertical plane: d_cam = (xn, yn, 1) has tan(el) = -yn / hypot(xn, 1).
+    return cam.cy - cam.fy * np.tan(np.radians(el)) * np.hypot(xn, 1.0)
+
+
+def render_rows(dem, truth: Truth, cam: Camera, pan=0.0, tilt=0.0, rocks=None):
+    origin = camera_centre(dem, truth.x, truth.y, 1.5)
+    proj = Projection.frame(cam, truth.yaw_deg, truth.pitch_deg, truth.roll_deg, pan, tilt)
+    cast = cast_image(dem, origin, proj, rocks=rocks)
+    return column_skyline(dem, origin, proj, ~np.isfinite(cast.terrain_t)), cast
+
+
+# --- geometry ------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("yaw", [0.0, 137.0, 251.5])
+def test_nominal_frame_matches_projected_horizon(hills, yaw):
+    cam = get_camera("navcam")
+    x, y = 2400.3, 2210.7
+    rows, _ = render_rows(hills, Truth(x, y, yaw), cam)
+    pred = horizon_rows(hills, x, y, cam, yaw)
+    in_frame = (pred >= 0) & (pred <= cam.height - 1)
+    assert in_frame.sum() > 0.6 * cam.width
+    assert np.mean(np.abs(rows[in_frame] - pred[in_frame]) <= 1.0) >= 0.99  # NaN rows count as misses
+    # Where the predicted skyline lies above the frame, the column has no skyline.
+    assert np.all(np.isnan(rows[pred < -1.0]))
+
+
+def test_written_truth_file_matches_horizon_renderer(hills, tmp_path):
+    cam = get_camera("navcam")
+    t = Truth(1800.0, 3000.0, 40.0)
+    out = simulate_acquisition(hills, t, tmp_path / "acq", frames=1, pan_start_deg=10.0, seed=2)
+    sky = read_skyline_json(out / "frame_000.skyline.json")
+    assert (sky.width, sky.height, sky.image) == (cam.width, cam.height, "frame_000.png")
+    pred = horizon_rows(hills, t.x, t.y, cam, t.yaw_deg, pan=10.0)
+    ok = np.isfinite(sky.rows) & np.isfinite(pred)
+    assert ok.mean() > 0.95
+    assert np.mean(np.abs(sky.rows[ok] - pred[ok]) <= 1.0) >= 0.99
+
+
+@pytest.mark.parametrize("attitude", [(5.0, -7.0, 10.0, 4.0), (-8.0, 9.0, -25.0, -3.0)])
+def test_tilted_distorted_skyline_rays_lie_on_the_rendered_horizon(hills, attitude):
+    """Any attitude and a distorted lens: each skyline point's ray has the horizon's elevation."""
+    pitch, roll, pan, tilt = attitude
+    cam = camera_from_fov(320, 240, 90.0, get_camera("wide").distortion)
+    t = Truth(2500.0, 2500.0, 75.0, pitch, roll)
+    rows, _ = render_rows(hills, t, cam, pan=pan, tilt=tilt)
+    cols = np.flatnonzero(np.isfinite(rows))
+    assert cols.size > 0.9 * cam.width
+    d_cam = cam.pixel_to_ray(cols.astype(float), rows[cols])
+    d = d_cam @ r_world_cam(t.yaw_deg, pitch, roll, pan, tilt).T
+    az, el = direction_to_az_el(d)
+    hb = render_horizons(hills, t.x, t.y, azimuth_bins=36000)
+    el_h = np.interp(az, hb.azimuth_deg, hb.elevation_deg[0], period=360)
+    px_per_deg = cam.fy * np.pi / 180
+    assert np.mean(np.abs(el - el_h) * px_per_deg <= 1.0) >= 0.99
+
+
+def test_panorama_rows_match_horizon_and_spec(hills, tmp_path):
+    t = Truth(2000.0, 2600.0, 30.0)
+    out = simulate_acquisition(hills, t, tmp_path / "pano", mode="panorama", pano_size=(720, 180),
+                               seed=1)
+    acq = load_acquisition(out)
+    spec = acq.panorama
+    assert acq.frames == () and spec.image == "pano.png" and spec.hfov_deg == 360.0
+    sky = read_skyline_json(out / "pano.skyline.json")
+    W, H = 720, 180
+    # Pixel centres at (j + 0.5, i + 0.5) of the angular grid, azimuth from the rover's forward axis.
+    az_body = spec.azimuth_left_deg + (np.arange(W) + 0.5) * spec.hfov_deg / W
+    hb = render_horizons(hills, t.x, t.y, azimuth_bins=36000)
+    el = np.interp((az_body + t.yaw_deg) % 360, hb.azimuth_deg, hb.elevation_deg[0], period=360)
+    pred = (spec.elevation_top_deg - el) / (spec.vfov_deg / H) - 0.5
+    assert np.isfinite(sky.rows).all()
+    assert np.max(np.abs(sky.rows - pred)) < 0.3
+
+
+def test_panorama_is_levelled_in_the_body_frame(hills):
+    """With roll, a body-frame panorama shows the world horizon as a sine across azimuth."""
+    from skyfix.formats import PanoramaSpec
+
+    t = Truth(2000.0, 2600.0, 0.0, 0.0, 8.0)
+    spec = PanoramaSpec("p.png", -180.0, 360.0, 45.0, 90.0)
+    W, H = 720, 360
+    origin = camera_centre(hills, t.x, t.y, 1.5)
+    proj = Projection.panorama(spec, W, H, t.yaw_deg, t.pitch_deg, t.roll_deg)
+    cast = cast_image(hills, origin, proj)
+    rows = column_skyline(hills, origin, proj, ~np.isfinite(cast.terrain_t))
+    flat = Projection.panorama(spec, W, H, 0.0, 0.0, 0.0)
+    cast0 = cast_image(hills, origin, flat)
+    rows0 = column_skyline(hills, origin, flat, ~np.isfinite(cast0.terrain_t))
+    d = (rows - rows0) * (90.0 / H)  # [deg] how much lower the skyline sits when rolled
+    az = -180.0 + (np.arange(W) + 0.5) * 360.0 / W
+    # Right side down: to the right (az 90) the world's horizon rises in the body frame.
+    k90, km90 = np.argmin(np.abs(az - 90)), np.argmin(np.abs(az + 90))
+    assert d[k90] < -6 and d[km90] > 6
+    assert abs(d[np.argmin(np.abs(az))]) < 1.5
+
+
+# --- conventions ---------------------------------------------------------------------------------
+
+def peak_column(rows):
+    return int(np.nanargmin(rows))
+
+
+@pytest.fixture(scope="module")
+def east_peak():
+    return peak_dem((800.0, 500.0))
+
+
+CAM = camera_from_fov(401, 301, 60.0)
+
+
+def test_peak_due_east_seen_with_yaw_and_pan(east_peak):
+    fx, cx = CAM.fx, CAM.cx
+    rows, _ = render_rows(east_peak, Truth(500.0, 500.0, 0.0), CAM, pan=90.0)
+    assert abs(peak_column(rows) - cx) <= 2
+    rows, _ = render_rows(east_peak, Truth(500.0, 500.0, 90.0), CAM)
+    assert abs(peak_column(rows) - cx) <= 2
+    # Facing 70 deg, the peak (az 90) is 20 deg to the right.
+    rows, _ = render_rows(east_peak, Truth(500.0, 500.0, 70.0), CAM)
+    assert abs(peak_column(rows) - (cx + fx * np.tan(np.radians(20)))) <= 2
+    # Pan clockwise by 40 from heading 70: the peak is now 20 deg to the left.
+    rows, _ = render_rows(east_peak, Truth(500.0, 500.0, 70.0), CAM, pan=40.0)
+    assert abs(peak_column(rows) - (cx - fx * np.tan(np.radians(20)))) <= 2
+
+
+def test_tilt_and_pitch_up_move_the_skyline_down(east_peak):
+    t = Truth(500.0, 500.0, 90.0)
+    base, _ = render_rows(east_peak, t, CAM)
+    up, _ = render_rows(east_peak, t, CAM, tilt=10.0)
+    nose_up, _ = render_rows(east_peak, Truth(500.0, 500.0, 90.0, 10.0, 0.0), CAM)
+    c = int(CAM.cx)
+    assert base[c] < CAM.cy - 30  # the peak, well above the level line
+    # Raising the optical axis by 10 deg moves a point at elevation e from fy tan(e) to
+    # fy tan(e - 10) above the centre row.
+    e = np.arctan((CAM.cy - base[c]) / CAM.fy)
+    shift = CAM.fy * (np.tan(e) - np.tan(e - np.radians(10)))
+    assert up[c] - base[c] == pytest.approx(shift, abs=1.0)
+    assert nose_up[c] - base[c] == pytest.approx(shift, abs=1.0)
+
+
+def _slope(rows):
+    cols = np.arange(rows.size)
+    ok = np.isfinite(rows)
+    # Fit away from the peak (due east, near the centre column at yaw 90).
+    ok &= np.abs(cols - rows.size / 2) > rows.size * 0.2
+    return np.polyfit(cols[ok], rows[ok], 1)[0]
+
+
+def test_roll_right_side_down_raises_the_right_of_the_skyline(east_peak):
+    t0 = _slope(render_rows(east_peak, Truth(500.0, 500.0, 90.0), CAM)[0])
+    rolled = _slope(render_rows(east_peak, Truth(500.0, 500.0, 90.0, 0.0, 6.0), CAM)[0])
+    assert abs(t0) < 0.01
+    # Right side down: the image turns clockwise, the world's horizon rises on the right
+    # (smaller rows), with slope about -tan(roll).
+    assert rolled == pytest.approx(-np.tan(np.radians(6)), rel=0.15)
+    # Pitch nose-up looking right (pan 90): forward is on the image's left and goes up.
+    side = _slope(render_rows(east_peak, Truth(500.0, 500.0, 0.0, 6.0, 0.0), CAM, pan=90.0)[0])
+    assert side == pytest.approx(-np.tan(np.radians(6)), rel=0.15)
+
+
+def test_curvature_lowers_distant_terrain():
+    """A 1000 m wall 30 km away: its elevation drops by coeff * d on Mars versus a huge planet."""
+    n = 70
+    z = np.zeros((n, n))
+    z[:, -3:] = 1000.0
+    dem = Dem.from_array(z, 500.0)
+    cam = camera_from_fov(201, 201, 20.0)
+    x, y = 1000.0, (n - 1) * 250.0
+    rows = {}
+    for planet in ("mars", 1e12):
+        origin = camera_centre(dem, x, y, 1.5)
+        proj = Projection.frame(cam, 90.0, 0, 0, 0, 0)
+        cast = cast_image(dem, origin, proj, planet=planet)
+        rows[planet] = column_skyline(dem, origin, proj, ~np.isfinite(cast.terrain_t), planet=planet)
+    d = (n - 3) * 500.0 - x
+    from skyfix.planets import MARS
+    drop_deg = np.degrees(MARS.curvature_coeff * d)
+    c = 100
+    shift = rows["mars"][c] - rows[1e12][c]
+    assert shift == pytest.approx(cam.fy * np.tan(np.radians(drop_deg)), rel=0.05)
+
+
+# --- acquisitions --------------------------------------------------------------------------------
+
+def test_frame_pans():
+    nav = get_camera("navcam")
+    assert frame_pans(nav) == [30.0 * k for k in range(12)]
+    assert frame_pans(nav, 3) == [-30.0, 0.0, 30.0]
+    assert frame_pans(get_camera("wide")) == [60.0 * k for k in range(6)]
+    with pytest.raises(ParameterError):
+        frame_pans(nav, 14)
+
+
+def test_acquisition_files_and_truth(hills, tmp_path):
+    cam = camera_from_fov(160, 120, 45.0)
+    t = Truth(2100.5, 2300.25, 12.0, 2.0, -1.0)
+    out = simulate_acquisition(hills, t, tmp_path / "a", camera=cam, frames=3, pan_step_deg=30,
+                               attitude_prior=(0.0, 0.0), seed=4)
+    acq = load_acquisition(out)
+    assert [f.pan_deg for f in acq.frames] == [-30.0, 0.0, 30.0]
+    assert acq.camera == cam and (acq.prior_pitch_deg, acq.prior_roll_deg) == (0.0, 0.0)
+    assert load_truth(out) == t
+    import cv2
+
+    for f in acq.frames:
+        img = cv2.imread(str(out / f.image), cv2.IMREAD_UNCHANGED)
+        assert img.shape == (120, 160, 3) and img.dtype == np.uint8
+        raw = json.loads((out / f.image.replace(".png", ".skyline.json")).read_text())
+        assert len(raw["rows"]) == 160 and raw["height"] == 120
+    with pytest.raises(OutputExistsError):
+        simulate_acquisition(hills, t, out, camera=cam, frames=1)
+    simulate_acquisition(hills, t, out, camera=cam, frames=1, overwrite=True)
+    assert sorted(p.name for p in out.glob("*.png")) == ["frame_000.png"]
+
+
+def test_rocks_cut_the_skyline_and_are_written_apart(hills, tmp_path):
+    cam = camera_from_fov(256, 192, 60.0)
+    out = simulate_acquisition(hills, Truth(2500.0, 2500.0, 0.0), tmp_path / "r", camera=cam,
+                               frames=3, conditions="rocks", seed=3)
+    cut = 0
+    for k in range(3):
+        terr = read_skyline_json(out / f"frame_{k:03d}.skyline.json").rows
+        vis = read_skyline_json(out / f"frame_{k:03d}.visible.skyline.json").rows
+        both = np.isfinite(terr) & np.isfinite(vis)
+        # Rocks only hide terrain: the visible skyline is never below the terrain one.
+        assert np.all(vis[both] <= terr[both] + 1e-3)
+        cut += int(np.sum(vis[both] < terr[both] - 2))
+    assert cut > 20
+    meta = json.loads((out / "acquisition.json").read_text())["simulation"]
+    assert len(meta["rocks"]) >= 4
+
+
+def test_rock_silhouette_matches_ellipsoid():
+    """On a flat plain, a sphere's visible outline is where its tangent cone meets the column."""
+    dem = Dem.from_array(np.zeros((41, 41)), 10.0)
+    cam = camera_from_fov(201, 201, 40.0)
+    t = Truth(200.0, 200.0, 0.0)
+    rock = np.array([[200.0, 210.0, 1.5, 1.0, 1.0]])  # centre at camera height, 10 m north
+    rows, cast = render_rows(dem, t, cam, rocks=rock)
+    vis = column_skyline(dem, camera_centre(dem, 200, 200, 1.5), Projection.frame(cam, 0, 0, 0, 0, 0),
+                         cast.kind == 0, rocks=rock)
+    c = 100  # the centre column looks straight at the rock: top tangent at asin(r / d) above level
+    expected = cam.cy - cam.fy * np.tan(np.arcsin(1.0 / 10.0))
+    assert vis[c] == pytest.approx(expected, abs=0.05)
+    assert rows[c] > cam.cy  # the plain's own skyline is just below the level line
+
+
+def test_looks_sky_colours_and_exposure(hills, tmp_path):
+    import cv2
+
+    cam = camera_from_fov(160, 120, 45.0)
+    t = Truth(2400.0, 2400.0, 200.0)
+    means = {}
+    for name, planet, cond in (("e", "earth", None), ("m", "mars", None), ("dark", "earth", "dark"),
+                               ("over", "earth", "overexposed:0.7")):
+        out = simulate_acquisition(hills, t, tmp_path / name, camera=cam, frames=1, planet=planet,
+                                   conditions=cond, seed=1, tilt_deg=10)
+        rgb = cv2.imread(str(out / "frame_000.png"))[..., ::-1].astype(float)
+        rows = read_skyline_json(out / "frame_000.skyline.json").rows
+        vv = np.arange(cam.height)[:, None]
+        sky = vv < np.nan_to_num(rows, nan=0)[None, :] - 3
+        means[name] = (rgb[sky].mean(axis=0), rgb.mean())
+    assert means["e"][0][2] > means["e"][0][0] + 20  # Earth sky is blue
+    assert means["m"][0][0] > means["m"][0][2] + 20  # Mars sky is butterscotch
+    assert means["dark"][1] < 0.6 * means["e"][1] < means["over"][1]
+
+
+def test_overlapping_frames_agree(hills, tmp_path):
+    """World-fixed texture: the same direction looks the same in two overlapping frames."""
+    import cv2
+
+    cam = camera_from_fov(300, 200, 45.0)
+    out = simulate_acquisition(hills, Truth(2400.0, 2400.0, 0.0), tmp_path / "o", camera=cam,
+                               frames=2, pan_start_deg=0, pan_step_deg=20, seed=5, tilt_deg=-10)
+    a, b = (cv2.imread(str(out / f"frame_00{k}.png"), cv2.IMREAD_GRAYSCALE).astype(float) for k in range(2))
+    # High-pass: vignetting differs between the frames (smooth), texture must not.
+    a, b = (im - cv2.GaussianBlur(im, (0, 0), 6) for im in (a, b))
+    vv, uu = np.mgrid[20:180:3, 20:280:3]
+    r0 = r_world_cam(0, 0, 0, 0, -10)
+    r1 = r_world_cam(0, 0, 0, 20, -10)
+    d = cam.pixel_to_ray(uu, vv) @ r1.T @ r0  # frame-1 rays in frame-0 camera axes
+    u0, v0, front = cam.ray_to_pixel(d)
+    inside = front & (u0 > 20) & (u0 < cam.width - 20) & (v0 > 20) & (v0 < cam.height - 20)
+    assert inside.sum() > 300
+    same = b[vv[inside], uu[inside]]
+    there = a[np.round(v0[inside]).astype(int), np.round(u0[inside]).astype(int)]
+    assert np.corrcoef(same, there)[0, 1] > 0.6
+    assert abs(np.corrcoef(same, np.roll(there, 37))[0, 1]) < 0.2
+
+
+# --- conditions and sets -------------------------------------------------------------------------
+
+def test_conditions_parse():
+    c = Conditions.parse("dust:0.5, rocks")
+    assert (c.dust, c.rocks, c.glare) == (0.5, 1.0, 0.0)
+    assert str(c) == "dust:0.5,rocks:1"
+    with pytest.raises(ParameterError, match="unknown condition"):
+        Conditions.parse("smoke")
+    with pytest.raises(ParameterError, match=r"\[0, 1\]"):
+        Conditions.parse("dust:2")
+    with pytest.raises(ParameterError, match="Earth"):
+        simulate_acquisition(hills_dem(20), Truth(300, 300, 0), "/nonexistent/x", planet="mars",
+                             conditions="clouds")
+
+
+def test_every_condition_renders(hills, tmp_path):
+    cam = camera_from_fov(96, 64, 45.0)
+    for name in Conditions.names():
+        planet = "earth"
+        out = simulate_acquisition(hills, Truth(2400.0, 2400.0, 0.0), tmp_path / name, camera=cam,
+                                   frames=1, conditions=name, planet=planet, seed=1)
+        assert (out / "frame_000.png").is_file()
+
+
+def test_sets_are_deterministic_and_do_what_they_say(hills):
+    for name in SETS:
+        a = plan_set(hills, name, 4, seed=7)
+        b = plan_set(hills, name, 4, seed=7)
+        assert [(p["truth"], p["kwargs"]) for p in a] == [(p["truth"], p["kwargs"]) for p in b]
+    c = plan_set(hills, "REF", 4, seed=8)
+    assert [p["truth"] for p in c] != [p["truth"] for p in plan_set(hills, "REF", 4, seed=7)]
+    xs = np.array([[p["truth"].x, p["truth"].y] for p in plan_set(hills, "REF", 30, seed=1)])
+    assert np.all(np.abs(xs / 30.0 - np.round(xs / 30.0)) > 1e-6)  # off-grid
+    lrel = plan_set(hills, "LREL", 10, seed=1)
+    att = np.array([[p["truth"].pitch_deg, p["truth"].roll_deg] for p in lrel])
+    assert np.all(np.abs(att) <= 10) and np.abs(att).max() > 3
+    assert lrel[0]["kwargs"]["attitude_prior"] == (0.0, 0.0)
+    # HREL picks flatter horizons than random positions.
+    def relief(plans):
+        pts = np.array([[p["truth"].x, p["truth"].y] for p in plans])
+        e = render_horizons(hills, pts[:, 0], pts[:, 1]).elevation_deg
+        return np.mean(e.max(axis=1) - e.min(axis=1))
+    assert relief(plan_set(hills, "HREL", 5, seed=1)) < 0.7 * relief(plan_set(hills, "REF", 20, seed=1))
+    area = (1000.0, 1000.0, 1500.0, 1200.0)
+    pts = np.array([[p["truth"].x, p["truth"].y] for p in plan_set(hills, "OCCL", 10, 1, area=area)])
+    assert np.all((pts >= [1000, 1000]) & (pts <= [1500, 1200]))
+    with pytest.raises(ParameterError, match="unknown set"):
+        plan_set(hills, "NOPE", 2, 0)
+
+
+def test_simulate_set_writes_identical_cases_for_a_seed(hills, tmp_path):
+    cam = camera_from_fov(64, 48, 45.0)
+    a = simulate_set(hills, "COND", 2, 3, tmp_path / "a", camera=cam, frames=1)
+    b = simulate_set(hills, "COND", 2, 3, tmp_path / "b", camera=cam, frames=1)
+    assert [p.name for p in a] == ["case_000", "case_001"]
+    for pa, pb in zip(a, b):
+        for f in sorted(pa.iterdir()):
+            assert f.read_bytes() == (pb / f.name).read_bytes(), f.name
+    listing = json.loads((tmp_path / "a" / "set.json").read_text())
+    assert listing["set"] == "COND" and len(listing["cases"]) == 2
+
+
+def test_scom_skyline_leaves_the_frame(hills, tmp_path):
+    cam = camera_from_fov(96, 96, 45.0)
+    folders = simulate_set(hills, "SCOM", 2, 5, tmp_path / "s", camera=cam, frames=4)
+    missing = []
+    for f in folders:
+        for sj in f.glob("*.skyline.json"):
+            rows = read_skyline_json(sj).rows
+            missing.append(np.mean(~np.isfinite(rows)))
+    assert max(missing) > 0.2 and min(missing) < 1.0
+
+
+# --- CLI -----------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def dem_file(tmp_path_factory):
+    p = tmp_path_factory.mktemp("dem") / "hills.tif"
+    write_dem(p, hills_dem(60))
+    return p
+
+
+def test_cli_simulate(dem_file, tmp_path):
+    out = tmp_path / "acq"
+    r = CliRunner().invoke(cli, ["simulate", str(dem_file), "--x", "900", "--y", "800", "--yaw-deg", "30",
+                                 "--frames", "1", "--camera", "navcam", "--conditions", "dust:0.3",
+                                 "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert load_truth(out) == Truth(900.0, 800.0, 30.0)
+    assert (out / "frame_000.skyline.json").is_file()
+    r = CliRunner().invoke(cli, ["simulate", str(dem_file), "--x", "900", "--y", "800", "--yaw-deg", "30",
+                                 "--out", str(out)])
+    assert r.exit_code == 2 and "--overwrite" in r.output
+
+
+@pytest.mark.parametrize("args, msg", [
+    (["--x", "900", "--y", "800", "--conditions", "smoke"], "unknown condition"),
+    (["--x", "90000", "--y", "800"], "outside the DEM"),
+    (["--x", "900", "--y", "800", "--frames", "0"], "at least one frame"),
+])
+def test_cli_simulate_errors(dem_file, tmp_path, args, msg):
+    r = CliRunner().invoke(cli, ["simulate", str(dem_file), "--yaw-deg", "0", *args, "--out",
+                                 str(tmp_path / "o")])
+    assert r.exit_code == 2, r.output
+    assert msg in r.output and "Traceback" not in r.output
+
+
+def test_cli_simulate_set(dem_file, tmp_path):
+    out = tmp_path / "set"
+    r = CliRunner().invoke(cli, ["simulate-set", str(dem_file), "--set", "ref", "--cases", "1",
+                                 "--mode", "panorama", "--pano-size", "360", "90", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert load_acquisition(out / "case_000").panorama is not None
+    r = CliRunner().invoke(cli, ["simulate-set", str(dem_file), "--set", "XYZ", "--out", str(tmp_path / "x")])
+    assert r.exit_code == 2 and "unknown set" in r.output
+
+
+def test_outside_dem_raises(hills, tmp_path):
+    with pytest.raises(OutsideDemError):
+        simulate_acquisition(hills, Truth(-50.0, 100.0, 0.0), tmp_path / "x")
+    assert not (tmp_path / "x").exists()
