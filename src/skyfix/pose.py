@@ -151,8 +151,8 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
                     for i in range(3):
                         e = np.zeros(3)
                         e[i] = h
-                        jac[:, i] = -(resid(th + e) - resid(th - e)) / (2 * h)
-                    jac[:, 3] = -1.0
+                        jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)  # dr/dtheta
+                    jac[:, 3] = -1.0  # dr/d(offset): a nuisance, the median is removed anyway
                     jw = jac * w[:, None]
                     a = jac.T @ jw
                     g = jw.T @ r
@@ -180,7 +180,7 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
     for i in range(3):
         e = np.zeros(3)
         e[i] = h
-        jac[:, i] = -(resid(th + e) - resid(th - e)) / (2 * h)
+        jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)
     jac[:, 3] = -1.0
     sig2 = float(np.sum(w * r * r) / max(1, r.size - 4))
     try:
@@ -315,9 +315,13 @@ def _profile_arrays(profile):
 def _score_points(dem, xs, ys, query, *, camera_height_m, planet, n_bins, workers=2):
     from .horizon import render_horizons
 
+    # A measured bin averages the skyline over its width: render 5 sub-bins per bin and average,
+    # or sharp ridges bias the fine position (point samples vs bin means).
+    k = 5
     hb = render_horizons(dem, xs, ys, camera_height_m=camera_height_m, planet=planet,
-                         azimuth_bins=n_bins)
+                         azimuth_bins=n_bins * k)
     p = np.nan_to_num(hb.elevation_deg, nan=0.0)
+    p = np.roll(p, k // 2, axis=1).reshape(p.shape[0], n_bins, k).mean(axis=2)
     return score_profiles(p, query, workers)
 
 
