@@ -56,7 +56,7 @@ class MatchConfig:
     keep_min: int = 16
     top_k: int = 8
     nms_radius_m: float = 40.0
-    slice_rows: int = 4096
+    slice_rows: int = 2048
     workers: int = 2
     min_observed: int = 20
 
@@ -81,7 +81,7 @@ class Query:
     m_obs: int
     full: bool
     sq: float
-    u_q: np.ndarray
+    u_q: np.ndarray  # whitened: (L^T U)^T M q with G^-1 = L L^T
     g_inv: np.ndarray
     k_p: np.ndarray  # (n_kernels, n//2+1) conj spectra correlated with p: [m q, m U_0, m U_1, ...]
     k_p2: np.ndarray | None  # conj spectrum of m, correlated with p^2 (None when full)
@@ -122,12 +122,15 @@ def prepare_query(elevation_deg, remove_tilt: bool = True, min_observed: int = 2
     if np.linalg.cond(g) > 1e6:
         raise ParameterError("observed bins too clustered to fit the tilt harmonic; "
                              "match with remove_tilt=False")
-    kernels = [m * qz] + [m * u[:, i] for i in range(u.shape[1])]
+    # Whiten the nuisance kernels with G^-1 = L L^T: the quadratic form becomes a sum of squares.
+    chol = np.linalg.cholesky(g_inv)
+    uw = u @ chol
+    kernels = [m * qz] + [m * uw[:, i] for i in range(u.shape[1])]
     full = bool(mask.all())
     k_p = np.conj(sf.rfft(np.stack(kernels), axis=1)).astype(np.complex64)
     k_p2 = None if full else np.conj(sf.rfft(m)).astype(np.complex64)
     return Query(n, np.where(mask, q, np.nan), mask, m_obs, full, float(np.sum(qz * qz)),
-                 u.T @ (m * qz), g_inv, k_p, k_p2)
+                 uw.T @ (m * qz), g_inv, k_p, k_p2)
 
 
 def score_profiles(p: np.ndarray, query: Query, workers: int = 2, all_shifts: bool = False):
@@ -147,16 +150,19 @@ def score_profiles(p: np.ndarray, query: Query, workers: int = 2, all_shifts: bo
     p = p - p.mean(axis=1, keepdims=True)
     spec = sf.rfft(p, axis=1, workers=workers)
     corr = sf.irfft(spec[:, None, :] * query.k_p[None], n=n, axis=2, workers=workers)
-    a = corr[:, 0]
-    d = query.u_q[None, :, None].astype(np.float32) - corr[:, 1:]  # (N, nb, n)
-    g = query.g_inv.astype(np.float32)
-    quad = np.einsum("kbs,bc,kcs->ks", d, g, d, optimize=True)
+    del spec
     if query.full:
-        c = np.sum(p * p, axis=1, keepdims=True)
+        s = np.sum(p * p, axis=1, keepdims=True) + np.zeros((1, n), np.float32)
     else:
-        c = sf.irfft(sf.rfft(p * p, axis=1, workers=workers) * query.k_p2[None], n=n, axis=1,
+        s = sf.irfft(sf.rfft(p * p, axis=1, workers=workers) * query.k_p2[None], n=n, axis=1,
                      workers=workers)
-    s = query.sq - 2.0 * a + c - quad
+    s += np.float32(query.sq)
+    s -= 2.0 * corr[:, 0]
+    for i in range(1, corr.shape[1]):
+        d = corr[:, i]
+        d -= np.float32(query.u_q[i - 1])
+        d *= d
+        s -= d
     np.maximum(s, 0.0, out=s)
     s /= query.m_obs
     if all_shifts:
