@@ -384,6 +384,22 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
     missing = int(getattr(db, "missing", MISSING_RAW))
     t_read = t_coarse = t_exact = 0.0
     n_pos = n_exact = 0
+    pend: list = []
+    pend_n = 0
+
+    def flush():
+        nonlocal pend, pend_n
+        if not pend:
+            return 0
+        pp = np.concatenate([a for a, _, _ in pend])
+        r_ = np.concatenate([b for _, b, _ in pend])
+        c_ = np.concatenate([c for _, _, c in pend])
+        pend, pend_n = [], 0
+        es, sh = score_profiles(pp, query, config.workers)
+        score_map[r_, c_] = es
+        heading_map[r_, c_] = sh * (360.0 / n)
+        return pp.shape[0]
+
     t0 = time.perf_counter()
     blocks = db.iter_blocks()
     while True:
@@ -421,17 +437,21 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
                     part = np.arange(idx.size)
                 tb = time.perf_counter()
                 t_coarse += tb - ta
-                p = p[part]
-                idx = idx[part]
+                # Survivors are few per slice: batch them, FFT calls cost ~100 us each.
+                pend.append((p[part], rr[idx[part]], cc[idx[part]]))
+                pend_n += part.size
             else:
+                pend.append((p, rr[idx], cc[idx]))
+                pend_n += idx.size
+            if pend_n >= config.slice_rows:
                 tb = time.perf_counter()
-            es, sh = score_profiles(p, query, config.workers)
-            score_map[rr[idx], cc[idx]] = es
-            heading_map[rr[idx], cc[idx]] = sh * (360.0 / n)
-            n_exact += idx.size
-            t_exact += time.perf_counter() - tb
+                n_exact += flush()
+                t_exact += time.perf_counter() - tb
         t0 = time.perf_counter()
-    t_read += time.perf_counter() - t0
+    tb = time.perf_counter()
+    n_exact += flush()
+    t_exact += time.perf_counter() - tb
+    t_read += tb - t0
     if n_pos == 0:
         raise DatabaseError("no database position lies inside the prior area: check --prior-x/"
                             "--prior-y/--prior-radius-m against the database extent")
