@@ -253,6 +253,12 @@ def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz,
         for b in range(nb):
             du = saz[b] / dx
             dv = -caz[b] / dy
+            # cos(90 deg) is 6e-17, not 0: a ray along a grid line with such a residual slope
+            # never leaves its row (exit distance 0, 1e-6 m steps: an apparent hang).
+            if abs(du) < 1e-12:
+                du = 0.0
+            if abs(dv) < 1e-12:
+                dv = 0.0
             # Distance to the pixel-centre hull along the ray: rays stop at the DEM edge.
             t_edge = np.inf
             if du > 1e-15:

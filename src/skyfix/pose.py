@@ -1,0 +1,586 @@
+"""Stage 8: position, heading and attitude from a body-frame skyline profile.
+
+Pipeline of :func:`locate`:
+
+1. candidates: the database matcher (:mod:`skyfix.match`) keeps the best K positions in distinct
+   basins; without a database (small prior area) a grid is rendered from the DEM over the prior.
+2. refinement of every kept candidate (the source study's single-candidate pyramid fell into
+   false minima): fresh skylines rendered from the DEM on finer and finer local grids (each level
+   4x finer, 9 x 9 points), scored with the same shift search (tilt harmonic removed).
+3. attitude: yaw, pitch and roll by Gauss-Newton against the rendered horizon, with restarts at
+   -2.5/0/+2.5 deg per axis around the first guess; the query is then re-levelled with the
+   estimated attitude and the finest position levels are redone.
+4. confidence: a logistic model on features of the score landscape (best vs best of another basin,
+   residual vs expected noise, relief of the skyline), fitted on simulated cases by
+   ``scripts/calibrate_confidence.py`` (``skyfix/models/confidence.json``).
+
+The forward model (world horizon -> body-frame profile for an attitude) is :func:`body_profile`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .camera import r_world_body
+from .errors import ParameterError, SkyfixError
+from .match import MatchConfig, brute_force_scores, match_database, prepare_query, score_profiles  # noqa: F401
+
+MODEL_PATH = Path(__file__).resolve().parent / "models" / "confidence.json"
+
+
+@dataclass(frozen=True)
+class PoseConfig:
+    """Pose estimation settings.
+
+    refine_candidates : how many of the matcher's candidates are refined from the DEM
+    levels : refinement levels (each 4x finer, 9 x 9 grid)
+    grid_step_m : [m] first grid step without a database (scenario 2)
+    render_bins : azimuth bins of the horizons rendered for the attitude fit
+    restarts_deg : [deg] offsets of the Gauss-Newton restarts per axis
+    tolerance_m : [m] what "correct" means for the confidence (scenario 1: 5 m)
+    """
+
+    match: MatchConfig = MatchConfig()
+    refine_candidates: int = 4
+    levels: int = 3
+    grid_step_m: float = 2.0
+    render_bins: int = 1440
+    restarts_deg: tuple = (-2.5, 0.0, 2.5)
+    tolerance_m: float = 5.0
+
+
+# --- forward model ------------------------------------------------------------------------------
+
+def body_profile(world_el_deg, yaw_deg, pitch_deg=0.0, roll_deg=0.0, *, n_bins=360,
+                 prior_pitch_deg=0.0, prior_roll_deg=0.0) -> np.ndarray:
+    """The body-frame profile [deg] a camera with this attitude measures, levelled with the prior.
+
+    world_el_deg : (m,) [deg] world-frame horizon, bin k at ``k * 360 / m`` from grid north
+    A world direction ``d`` appears at ``R(0, prior) R(yaw, pitch, roll)^T d`` in the levelled body
+    frame (azimuth from the forward axis); the rotated curve is re-binned by periodic linear
+    interpolation at the ``n_bins`` body bin centres.
+    """
+    w = np.asarray(world_el_deg, np.float64)
+    m = w.size
+    az = np.radians(np.arange(m) * 360.0 / m)
+    el = np.radians(np.nan_to_num(w))
+    ce = np.cos(el)
+    d = np.stack([ce * np.sin(az), ce * np.cos(az), np.sin(el)], axis=1)
+    rot = r_world_body(0.0, prior_pitch_deg, prior_roll_deg) @ r_world_body(yaw_deg, pitch_deg, roll_deg).T
+    b = d @ rot.T
+    azb = np.degrees(np.arctan2(b[:, 0], b[:, 1])) % 360.0
+    elb = np.degrees(np.arctan2(b[:, 2], np.hypot(b[:, 0], b[:, 1])))
+    order = np.argsort(azb)
+    return np.interp(np.arange(n_bins) * 360.0 / n_bins, azb[order], elb[order], period=360.0)
+
+
+def relevel(profile_deg, pitch_deg, roll_deg, *, prior_pitch_deg=0.0, prior_roll_deg=0.0):
+    """Undo an estimated attitude: the profile a level camera (same heading) would measure [deg]."""
+    q = np.asarray(profile_deg, np.float64)
+    n = q.size
+    obs = np.isfinite(q)
+    az = np.radians(np.arange(n) * 360.0 / n)
+    el = np.radians(np.nan_to_num(q))
+    ce = np.cos(el)
+    d = np.stack([ce * np.sin(az), ce * np.cos(az), np.sin(el)], axis=1)
+    rot = r_world_body(0.0, pitch_deg, roll_deg) @ r_world_body(0.0, prior_pitch_deg, prior_roll_deg).T
+    b = d @ rot.T
+    azl = np.degrees(np.arctan2(b[:, 0], b[:, 1])) % 360.0
+    ell = np.degrees(np.arctan2(b[:, 2], np.hypot(b[:, 0], b[:, 1])))
+    order = np.argsort(azl)
+    out = np.interp(np.arange(n) * 360.0 / n, azl[order], ell[order], period=360.0)
+    # A level bin is observed when both neighbours it was interpolated from were.
+    obs_l = np.interp(np.arange(n) * 360.0 / n, azl[order], obs[order].astype(float), period=360.0)
+    return np.where(obs_l > 0.999, out, np.nan)
+
+
+# --- attitude by Gauss-Newton ---------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Attitude:
+    yaw_deg: float
+    pitch_deg: float
+    roll_deg: float
+    rms_deg: float
+    yaw_sigma_deg: float
+    pitch_sigma_deg: float
+    roll_sigma_deg: float
+
+
+def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.0, *,
+                 restarts_deg=(-2.5, 0.0, 2.5), prior_pitch_deg=0.0, prior_roll_deg=0.0,
+                 yaw_window_deg=None, iterations=12) -> Attitude:
+    """Yaw, pitch, roll [deg] (and a height offset) that best map the world horizon onto the query.
+
+    Gauss-Newton with a numerical Jacobian and Huber weights (outlier bins), restarted from
+    every combination of ``restarts_deg`` offsets on the three axes; the lowest robust cost wins.
+    ``yaw_window_deg`` keeps yaw within that distance of ``yaw0_deg``.
+    """
+    q = np.asarray(query_deg, np.float64)
+    obs = np.isfinite(q)
+    qo = q[obs]
+    n = q.size
+    kw = dict(n_bins=n, prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+
+    def resid(th):
+        r = qo - body_profile(world_el_deg, th[0], th[1], th[2], **kw)[obs]
+        return r - np.median(r)
+
+    def robust(r):
+        s = max(1.4826 * np.median(np.abs(r)), 0.02)
+        k = 2.5 * s
+        a = np.abs(r)
+        return np.where(a <= k, 1.0, k / np.maximum(a, 1e-12)), np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k))
+
+    best = None
+    h = 0.02
+    for dy in restarts_deg:
+        for dp in restarts_deg:
+            for dr in restarts_deg:
+                th = np.array([yaw0_deg + dy, pitch0_deg + dp, roll0_deg + dr], float)
+                lam = 1e-3
+                r = resid(th)
+                w, cost = robust(r)
+                for _ in range(iterations):
+                    jac = np.empty((r.size, 4))
+                    for i in range(3):
+                        e = np.zeros(3)
+                        e[i] = h
+                        jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)  # dr/dtheta
+                    jac[:, 3] = -1.0  # dr/d(offset): a nuisance, the median is removed anyway
+                    jw = jac * w[:, None]
+                    a = jac.T @ jw
+                    g = jw.T @ r
+                    step = np.linalg.solve(a + lam * np.diag(np.diag(a) + 1e-9), -g)[:3]
+                    th_new = th + step
+                    if yaw_window_deg is not None:
+                        dyaw = (th_new[0] - yaw0_deg + 180.0) % 360.0 - 180.0
+                        th_new[0] = yaw0_deg + np.clip(dyaw, -yaw_window_deg, yaw_window_deg)
+                    th_new[1:] = np.clip(th_new[1:], -30.0, 30.0)
+                    r_new = resid(th_new)
+                    w_new, cost_new = robust(r_new)
+                    if cost_new < cost:
+                        th, r, w, cost = th_new, r_new, w_new, cost_new
+                        lam = max(lam / 4, 1e-6)
+                        if np.max(np.abs(step)) < 1e-4:
+                            break
+                    else:
+                        lam *= 8
+                        if lam > 1e4:
+                            break
+                if best is None or cost < best[0]:
+                    best = (cost, th.copy(), r.copy(), w.copy())
+    cost, th, r, w = best
+    jac = np.empty((r.size, 4))
+    for i in range(3):
+        e = np.zeros(3)
+        e[i] = h
+        jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)
+    jac[:, 3] = -1.0
+    sig2 = float(np.sum(w * r * r) / max(1, r.size - 4))
+    try:
+        cov = np.linalg.inv(jac.T @ (jac * w[:, None])) * sig2
+        sd = np.sqrt(np.clip(np.diag(cov)[:3], 0, None))
+    except np.linalg.LinAlgError:
+        sd = np.full(3, np.inf)
+    rms = float(np.sqrt(np.mean(r * r)))
+    return Attitude(float(th[0] % 360.0), float(th[1]), float(th[2]), rms, *map(float, sd))
+
+
+# --- the fix ---------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Fix:
+    """The answer of :func:`locate` (``conventions.md``): position [m] in ``crs``, lon/lat [deg],
+    heading/pitch/roll [deg], 1-sigma position [m] and heading [deg], calibrated ``confidence``,
+    ``score`` (mean squared residual [deg^2]) and the top candidates."""
+
+    x: float
+    y: float
+    crs: str
+    lon: float
+    lat: float
+    heading_deg: float
+    pitch_deg: float
+    roll_deg: float
+    position_sigma_m: float
+    heading_sigma_deg: float
+    confidence: float
+    score: float
+    candidates: tuple = ()
+    features: dict = field(default_factory=dict, compare=False)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["candidates"] = [dict(c) for c in self.candidates]
+        d.pop("features")
+        return d
+
+    def to_geojson(self) -> dict:
+        props = self.to_dict()
+        return {"type": "Feature", "geometry": {"type": "Point", "coordinates": [self.lon, self.lat]},
+                "properties": props}
+
+
+@dataclass(frozen=True)
+class HeadingFix:
+    """Scenario 3's answer: heading [deg] (and pitch/roll [deg]) at a given rough position."""
+
+    heading_deg: float
+    heading_sigma_deg: float
+    pitch_deg: float
+    roll_deg: float
+    confidence: float
+    score: float
+    x: float
+    y: float
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _crs_and_lonlat(crs_wkt: str, x: float, y: float):
+    if not crs_wkt:
+        return "", float("nan"), float("nan")
+    from pyproj import CRS, Transformer
+
+    crs = CRS.from_user_input(crs_wkt)
+    auth = crs.to_authority()
+    name = f"{auth[0]}:{auth[1]}" if auth else crs.name
+    try:
+        t = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+        lon, lat = t.transform(x, y)
+    except Exception:  # noqa: BLE001 - a CRS without a geographic link gives no lon/lat
+        lon = lat = float("nan")
+    return name, float(lon), float(lat)
+
+
+# --- confidence ------------------------------------------------------------------------------------
+
+FEATURES = ("log_ratio", "log_rms_over_noise", "log_relief", "observed_fraction")
+
+
+def confidence_features(best_score, other_score, rms_deg, noise_deg, relief_deg, observed_fraction):
+    """Features of the score landscape for the confidence model (see ``FEATURES``)."""
+    eps = 1e-4
+    ratio = (other_score + eps) / (best_score + eps) if np.isfinite(other_score) else 100.0
+    return {
+        "log_ratio": float(np.log(min(max(ratio, 1.0), 1e4))),
+        "log_rms_over_noise": float(np.log((rms_deg + 1e-3) / max(noise_deg, 0.02))),
+        "log_relief": float(np.log(relief_deg + 1e-3)),
+        "observed_fraction": float(observed_fraction),
+    }
+
+
+def _load_model(path=MODEL_PATH):
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def confidence_from_features(feat: dict, model: dict | None = None, key: str = "locate") -> float:
+    """Calibrated probability that the fix is right, from :func:`confidence_features`.
+
+    Uses the logistic model in ``skyfix/models/confidence.json``; without it, a conservative
+    uncalibrated fallback (ratio only) that never exceeds 0.5.
+    """
+    model = model if model is not None else _load_model()
+    if not model or key not in model:
+        return float(0.5 * (1 - math.exp(-feat["log_ratio"])))
+    m = model[key]
+    z = m["intercept"] + sum(c * feat[name] for c, name in zip(m["coef"], m["features"]))
+    p = 1.0 / (1.0 + math.exp(-max(min(z, 50.0), -50.0)))
+    # Platt-scaled probabilities are binned in the isotonic table when present.
+    table = m.get("isotonic")
+    if table:
+        p = float(np.interp(p, table["x"], table["y"]))
+    return float(p)
+
+
+# --- locate -----------------------------------------------------------------------------------------
+
+def _profile_arrays(profile):
+    el = np.asarray(profile.elevation_deg, np.float64)
+    sig = profile.sigma_deg
+    noise = float(np.nanmedian(sig)) if sig is not None and np.isfinite(sig).any() else 0.2
+    return el, noise
+
+
+def _score_points(dem, xs, ys, query, *, camera_height_m, planet, n_bins, workers=2):
+    from .horizon import render_horizons
+
+    # A measured bin averages the skyline over its width: render 5 sub-bins per bin and average,
+    # or sharp ridges bias the fine position (point samples vs bin means).
+    k = 5
+    hb = render_horizons(dem, xs, ys, camera_height_m=camera_height_m, planet=planet,
+                         azimuth_bins=n_bins * k)
+    p = np.nan_to_num(hb.elevation_deg, nan=0.0)
+    p = np.roll(p, k // 2, axis=1).reshape(p.shape[0], n_bins, k).mean(axis=2)
+    return score_profiles(p, query, workers)
+
+
+def _inside(dem, xs, ys, margin):
+    return np.asarray(dem.contains(xs, ys, margin), bool) & np.isfinite(dem.height_at(xs, ys))
+
+
+def _refine(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_tilt, workers):
+    """Local grid search (9 x 9 per level, 4x finer each level) around (x, y) [m].
+
+    Returns (x, y, score, heading_deg, local) with ``local`` the finest level's grid and scores
+    (for the position sigma)."""
+    n = q.size
+    query = prepare_query(q, remove_tilt, min_observed=8)
+    best = None
+    local = None
+    for _ in range(levels):
+        off = np.arange(-4, 5) * step
+        gx, gy = np.meshgrid(x + off, y + off)
+        gx, gy = gx.ravel(), gy.ravel()
+        ok = _inside(dem, gx, gy, 0.0)
+        if not ok.any():
+            break
+        gx, gy = gx[ok], gy[ok]
+        sc, sh = _score_points(dem, gx, gy, query, camera_height_m=camera_height_m, planet=planet,
+                               n_bins=n, workers=workers)
+        i = int(np.argmin(sc))
+        x, y = float(gx[i]), float(gy[i])
+        best = (x, y, float(sc[i]), float(sh[i]) * 360.0 / n)
+        local = (gx, gy, sc, step)
+        step /= 4.0
+    return (*best, local)
+
+
+def _position_sigma(local, best_score, m_obs, noise_deg):
+    """1-sigma position [m] from a quadratic fit of the score surface on the finest grid."""
+    gx, gy, sc, step = local
+    if gx.size < 6:
+        return float(step)
+    i = int(np.argmin(sc))
+    dx, dy = gx - gx[i], gy - gy[i]
+    near = (np.abs(dx) <= 2.01 * step) & (np.abs(dy) <= 2.01 * step)
+    a = np.stack([np.ones(near.sum()), dx[near], dy[near], dx[near] ** 2, dx[near] * dy[near],
+                  dy[near] ** 2], axis=1)
+    try:
+        c, *_ = np.linalg.lstsq(a, sc[near].astype(float), rcond=None)
+        hess = np.array([[2 * c[3], c[4]], [c[4], 2 * c[5]]])
+        # score = mean sq residual; NLL = m * score / (2 s^2) -> cov = 2 s^2 / m * H^-1.
+        s2 = max(best_score, noise_deg ** 2)
+        cov = 2 * s2 / m_obs * np.linalg.inv(hess)
+        ev = np.linalg.eigvalsh(cov)
+        if np.any(ev <= 0) or not np.all(np.isfinite(ev)):
+            return float(4 * step)
+        return float(max(math.sqrt(ev.sum()), step / math.sqrt(6)))
+    except np.linalg.LinAlgError:
+        return float(4 * step)
+
+
+def _harmonic_tilt(q, world_shifted):
+    """First guess of (pitch, roll) [deg] from the first harmonic of query - prediction."""
+    n = q.size
+    obs = np.isfinite(q)
+    az = np.radians(np.arange(n) * 360.0 / n)
+    u = np.stack([np.ones(n), np.cos(az), np.sin(az)], axis=1)[obs]
+    c, *_ = np.linalg.lstsq(u, (q - world_shifted)[obs], rcond=None)
+    # Small pitch p lowers what is ahead: -p cos(az); small roll r raises the right side: +r sin(az).
+    return float(-c[1]), float(c[2])
+
+
+def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
+           prior_pitch_deg: float = 0.0, prior_roll_deg: float = 0.0,
+           camera_height_m: float | None = None, planet=None, config: PoseConfig = PoseConfig(),
+           model: dict | None = None, return_match: bool = False):
+    """Position, heading and attitude from a body-frame profile.
+
+    profile : :class:`skyfix.formats.Profile` (frame ``body``, levelled with the attitude prior)
+    db : an opened skyline database (or anything with its read API); None for a small prior area
+    dem : the DEM the database was built from; needed to refine (and without a database)
+    prior_xy, prior_radius_m : [m] search disc (required without a database)
+    prior_pitch_deg, prior_roll_deg : [deg] the attitude prior the profile was levelled with
+    Returns a :class:`Fix` (and the :class:`skyfix.match.MatchResult` with ``return_match``).
+    """
+    if getattr(profile, "frame", "body") not in ("body", None):
+        raise ParameterError(f"locate needs a body-frame profile, got frame '{profile.frame}'")
+    q, noise = _profile_arrays(profile)
+    n = q.size
+    if db is None and dem is None:
+        raise ParameterError("locate needs a skyline database (--db) or a DEM with a prior area")
+    if db is None and (prior_xy is None or prior_radius_m is None):
+        raise ParameterError("without a database, give a prior position and radius "
+                             "(--prior-x, --prior-y, --prior-radius-m) and a DEM")
+    if camera_height_m is None:
+        camera_height_m = float(getattr(db, "camera_height_m", None) or
+                                profile.meta.get("camera_height_m", 1.5))
+    if planet is None:
+        planet = getattr(db, "planet", None) or "earth"
+        if isinstance(planet, dict):
+            planet = planet.get("name") or planet.get("radius_m") or "earth"
+    workers = config.match.workers
+    mres = None
+    if db is not None:
+        mres = match_database(db, q, config.match, prior_xy=prior_xy, prior_radius_m=prior_radius_m)
+        cands = [(c.x, c.y, c.score, c.heading_deg) for c in mres.candidates]
+        step0 = float(db.spacing_m) / 4.0
+        crs_wkt = getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else "")
+    else:
+        r = float(prior_radius_m)
+        step = config.grid_step_m
+        k = int(math.ceil(r / step))
+        off = np.arange(-k, k + 1) * step
+        gx, gy = np.meshgrid(prior_xy[0] + off, prior_xy[1] + off)
+        gx, gy = gx.ravel(), gy.ravel()
+        ok = _inside(dem, gx, gy, 0.0)
+        if not ok.any():
+            raise ParameterError("the prior area lies outside the DEM")
+        gx, gy = gx[ok], gy[ok]
+        query = prepare_query(q, config.match.remove_tilt, config.match.min_observed)
+        sc, sh = _score_points(dem, gx, gy, query, camera_height_m=camera_height_m, planet=planet,
+                               n_bins=n, workers=workers)
+        order = np.argsort(sc)
+        cands = []
+        for i in order:
+            if all(math.hypot(gx[i] - c[0], gy[i] - c[1]) > 2.5 * step for c in cands):
+                cands.append((float(gx[i]), float(gy[i]), float(sc[i]), float(sh[i]) * 360.0 / n))
+            if len(cands) >= config.match.top_k:
+                break
+        step0 = step / 4.0
+        crs_wkt = dem.crs_wkt
+    if not cands:
+        raise SkyfixError("no candidate position found: the database holds no usable skyline")
+    obs = np.isfinite(q)
+    relief = float(np.nanstd(q))
+    results = []
+    if dem is not None:
+        from .horizon import render_horizons
+
+        for cx, cy, cs, ch in cands[: config.refine_candidates]:
+            x, y, s, hd, local = _refine(dem, q, cx, cy, step0 * 4 / 4, config.levels,
+                                         camera_height_m=camera_height_m, planet=planet,
+                                         remove_tilt=config.match.remove_tilt, workers=workers)
+            world = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
+                                    azimuth_bins=config.render_bins).elevation_deg[0]
+            world_n = body_profile(world, hd, n_bins=n)
+            p0, r0 = _harmonic_tilt(q, world_n)
+            att = fit_attitude(q, world, hd, p0, r0, restarts_deg=config.restarts_deg,
+                               prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+            if abs(att.pitch_deg - prior_pitch_deg) > 1.0 or abs(att.roll_deg - prior_roll_deg) > 1.0:
+                # Re-level the query with the estimated attitude, then redo the finest levels.
+                ql = relevel(q, att.pitch_deg, att.roll_deg, prior_pitch_deg=prior_pitch_deg,
+                             prior_roll_deg=prior_roll_deg)
+                if np.isfinite(ql).sum() >= 20:
+                    x, y, s, hd, local = _refine(dem, ql, x, y, step0 / 4, config.levels - 1,
+                                                 camera_height_m=camera_height_m, planet=planet,
+                                                 remove_tilt=config.match.remove_tilt,
+                                                 workers=workers)
+                    world = render_horizons(dem, [x], [y], camera_height_m=camera_height_m,
+                                            planet=planet, azimuth_bins=config.render_bins
+                                            ).elevation_deg[0]
+                    att = fit_attitude(q, world, att.yaw_deg, att.pitch_deg, att.roll_deg,
+                                       restarts_deg=(0.0,), prior_pitch_deg=prior_pitch_deg,
+                                       prior_roll_deg=prior_roll_deg)
+            results.append(dict(x=x, y=y, score=s, heading=att.yaw_deg, att=att, local=local,
+                                db_score=cs))
+        results.sort(key=lambda d: d["att"].rms_deg)
+        best = results[0]
+        other = min([d["att"].rms_deg ** 2 for d in results[1:]] +
+                    [c[2] for c in cands[len(results):]] or [np.inf])
+        best_s = best["att"].rms_deg ** 2
+        psig = _position_sigma(best["local"], best["score"], int(obs.sum()), noise)
+        att = best["att"]
+        fx, fy, heading, pitch, roll = best["x"], best["y"], att.yaw_deg, att.pitch_deg, att.roll_deg
+        hsig, rms = att.yaw_sigma_deg, att.rms_deg
+        cand_out = [{"x": d["x"], "y": d["y"], "heading_deg": d["heading"],
+                     "score": d["att"].rms_deg ** 2} for d in results]
+        cand_out += [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]}
+                     for c in cands[len(results):]]
+    else:
+        cx, cy, cs, ch = cands[0]
+        other = cands[1][2] if len(cands) > 1 else np.inf
+        best_s = cs
+        fx, fy, heading, pitch, roll = cx, cy, ch, prior_pitch_deg, prior_roll_deg
+        psig = float(db.spacing_m) / math.sqrt(6)
+        hsig, rms = 360.0 / n, math.sqrt(cs)
+        cand_out = [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]} for c in cands]
+    feat = confidence_features(best_s, other, rms, noise, relief, float(obs.mean()))
+    conf = confidence_from_features(feat, model, "locate")
+    crs, lon, lat = _crs_and_lonlat(crs_wkt, fx, fy)
+    fix = Fix(float(fx), float(fy), crs, lon, lat, float(heading) % 360.0, float(pitch),
+              float(roll), float(psig), float(hsig), conf, float(best_s), tuple(cand_out), feat)
+    return (fix, mres) if return_match else fix
+
+
+def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
+                     camera_height_m=1.5, planet="earth", prior_pitch_deg=0.0, prior_roll_deg=0.0,
+                     render_bins=1440, model=None) -> HeadingFix:
+    """Scenario 3: heading [deg] from a rough position (x, y) [m] and a heading prior [deg].
+
+    The shift search is restricted to ``heading_prior_deg +/- window_deg``; the attitude is then
+    refined by Gauss-Newton with restarts, yaw kept within the window.
+    """
+    from .horizon import render_horizons
+
+    if not 0 < window_deg <= 180:
+        raise ParameterError(f"window must be in (0, 180] deg, got {window_deg}")
+    q, noise = _profile_arrays(profile)
+    n = q.size
+    dem.require_inside(np.array([x]), np.array([y]), "rough position")
+    world = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
+                            azimuth_bins=render_bins).elevation_deg[0]
+    world_n = np.nan_to_num(body_profile(world, 0.0, n_bins=n))
+    query = prepare_query(q, True, min_observed=8)
+    s = score_profiles(world_n[None].astype(np.float32), query, all_shifts=True)[0]
+    shifts = np.arange(n) * 360.0 / n
+    dist = np.abs((shifts - heading_prior_deg + 180.0) % 360.0 - 180.0)
+    inwin = dist <= window_deg
+    k = int(np.flatnonzero(inwin)[np.argmin(s[inwin])])
+    h0 = shifts[k]
+    p0, r0 = _harmonic_tilt(q, body_profile(world, h0, n_bins=n))
+    att = fit_attitude(q, world, h0, p0, r0, prior_pitch_deg=prior_pitch_deg,
+                       prior_roll_deg=prior_roll_deg, yaw_window_deg=window_deg,
+                       restarts_deg=(-2.5, 0.0, 2.5))
+    # Landscape inside the window: best vs best shift more than 3 deg away.
+    far = inwin & (np.abs((shifts - att.yaw_deg + 180.0) % 360.0 - 180.0) > 3.0)
+    other = float(s[far].min()) if far.any() else np.inf
+    feat = confidence_features(float(s[inwin].min()), other, att.rms_deg, noise,
+                               float(np.nanstd(q)), float(np.isfinite(q).mean()))
+    conf = confidence_from_features(feat, model, "heading")
+    return HeadingFix(att.yaw_deg % 360.0, att.yaw_sigma_deg, att.pitch_deg, att.roll_deg, conf,
+                      att.rms_deg ** 2, float(x), float(y))
+
+
+# --- simulation helpers (tests, benchmarks, calibration) ---------------------------------------------
+
+def synthetic_profile(dem, x, y, heading_deg, pitch_deg=0.0, roll_deg=0.0, *, camera_height_m=1.5,
+                      planet="earth", n_bins=360, noise_deg=0.0, outlier_fraction=0.0,
+                      coverage_deg=360.0, rng=None, render_bins=3600, prior_pitch_deg=0.0,
+                      prior_roll_deg=0.0):
+    """A body-frame :class:`~skyfix.formats.Profile` as a rover at (x, y) [m] with this attitude
+    [deg] would measure it: a dense rendered horizon rotated exactly into the body frame, then
+    Gaussian noise [deg], outlier bins (+/- 1..5 deg) and a view of ``coverage_deg`` centred on a
+    random azimuth."""
+    from .formats import Profile
+    from .horizon import render_horizons
+
+    rng = np.random.default_rng(rng)
+    world = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
+                            azimuth_bins=render_bins).elevation_deg[0]
+    # Average the dense world horizon onto sub-bins before rotating: a measured bin is an average.
+    q = body_profile(world, heading_deg, pitch_deg, roll_deg, n_bins=n_bins * 10,
+                     prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+    q = np.roll(q, 5).reshape(n_bins, 10).mean(axis=1) if n_bins * 10 == q.size else q
+    q = q + rng.normal(0.0, noise_deg, n_bins) if noise_deg > 0 else q
+    if outlier_fraction > 0:
+        k = rng.random(n_bins) < outlier_fraction
+        q[k] += rng.choice([-1, 1], k.sum()) * rng.uniform(1, 5, k.sum())
+    if coverage_deg < 360.0:
+        c = rng.uniform(0, 360)
+        az = np.arange(n_bins) * 360.0 / n_bins
+        d = np.abs((az - c + 180.0) % 360.0 - 180.0)
+        q[d > coverage_deg / 2] = np.nan
+    sig = np.where(np.isfinite(q), max(noise_deg, 0.05), np.nan)
+    return Profile(q, sig, "body", {"camera_height_m": camera_height_m})

@@ -1,0 +1,157 @@
+"""Pose: known answers on a synthetic DEM (own position, rotated heading, known tilt, flat)."""
+
+import numpy as np
+import pytest
+
+from skyfix.dem import Dem
+from skyfix.formats import Profile
+from skyfix.match import MatchConfig, MemoryStore
+from skyfix.pose import (PoseConfig, body_profile, estimate_heading, fit_attitude, locate,
+                         relevel, synthetic_profile)
+
+
+def _bumpy_dem():
+    y, x = np.mgrid[0:160, 0:160] * 10.0
+    z = (250 * np.exp(-((x - 300) ** 2 + (y - 1100) ** 2) / 3e4)
+         + 180 * np.exp(-((x - 1300) ** 2 + (y - 500) ** 2) / 6e4)
+         + 60 * np.sin(x / 90.0) * np.cos(y / 130.0) + 0.03 * x)
+    return Dem.from_array(z, 10.0)
+
+
+@pytest.fixture(scope="module")
+def world():
+    dem = _bumpy_dem()
+    xs = np.arange(500.0, 1100.1, 20.0)
+    ys = np.arange(1100.0, 499.9, -20.0)
+    return dem, MemoryStore.from_dem(dem, xs, ys, block=16)
+
+
+CFG = PoseConfig(match=MatchConfig(top_k=4), refine_candidates=2, levels=2,
+                 restarts_deg=(0.0,))
+
+
+def _ang(a):
+    return (a + 180.0) % 360.0 - 180.0
+
+
+def test_exact_grid_query_returns_its_position_and_heading(world):
+    dem, st = world
+    q = st.profiles_at(700.0, 900.0)[0].astype(float)
+    fix = locate(Profile(q, None, "body"), db=st, config=CFG)  # no DEM: database level only
+    assert (fix.x, fix.y) == (700.0, 900.0)
+    assert abs(_ang(fix.heading_deg)) < 0.3
+    assert fix.candidates[0]["x"] == 700.0
+
+
+def test_rotating_the_profile_rotates_the_heading(world):
+    _, st = world
+    q = st.profiles_at(860.0, 640.0)[0].astype(float)
+    for h in (37, 200):
+        body = np.roll(q, -h)  # world[az] = body[az - H]
+        fix = locate(Profile(body, None, "body"), db=st, config=CFG)
+        assert (fix.x, fix.y) == (860.0, 640.0)
+        assert abs(_ang(fix.heading_deg - h)) < 0.3
+
+
+def test_off_grid_position_refined_from_the_dem(world):
+    dem, st = world
+    tx, ty, th = 733.3, 871.9, 123.4
+    prof = synthetic_profile(dem, tx, ty, th, noise_deg=0.05, rng=3)
+    fix = locate(prof, db=st, dem=dem, config=CFG)
+    assert np.hypot(fix.x - tx, fix.y - ty) < 3.0
+    assert abs(_ang(fix.heading_deg - th)) < 0.5
+    assert fix.position_sigma_m > 0 and np.isfinite(fix.heading_sigma_deg)
+    d = fix.to_dict()
+    assert set(d) >= {"x", "y", "crs", "lon", "lat", "heading_deg", "pitch_deg", "roll_deg",
+                      "position_sigma_m", "heading_sigma_deg", "confidence", "score", "candidates"}
+    assert d["crs"] == "EPSG:32611" and np.isfinite(d["lat"])
+
+
+def test_prior_area_without_database(world):
+    dem, _ = world
+    tx, ty = 812.6, 701.2
+    prof = synthetic_profile(dem, tx, ty, 300.0, noise_deg=0.05, rng=4)
+    fix = locate(prof, dem=dem, prior_xy=(tx + 9.0, ty - 7.0), prior_radius_m=20.0, config=CFG)
+    assert np.hypot(fix.x - tx, fix.y - ty) < 1.5
+
+
+def test_forward_model_and_relevel_are_inverse():
+    a = np.radians(np.arange(720) * 0.5)
+    w = 5 + 3 * np.sin(3 * a + 1) + 2 * np.cos(7 * a) + np.sin(11 * a + 0.3)  # smooth: re-binning exact
+    tilted = body_profile(w, 40.0, 6.0, -4.0, n_bins=360)
+    level = body_profile(w, 40.0, 0.0, 0.0, n_bins=360)
+    back = relevel(tilted, 6.0, -4.0)
+    assert np.nanmax(np.abs(back - level)) < 0.05
+    # Small-angle check of the sign conventions: nose up lowers what is ahead.
+    flat = np.full(720, 0.0)
+    up = body_profile(flat, 0.0, 5.0, 0.0, n_bins=360)
+    assert up[0] == pytest.approx(-5.0, abs=0.05) and up[180] == pytest.approx(5.0, abs=0.05)
+    rr = body_profile(flat, 0.0, 0.0, 5.0, n_bins=360)
+    assert rr[90] == pytest.approx(5.0, abs=0.05)  # right side down: the right horizon rises
+
+
+def test_tilt_recovered_by_gauss_newton(world):
+    dem, _ = world
+    from skyfix.horizon import render_horizons
+
+    x, y, h, p, r = 760.0, 820.0, 75.0, 7.0, -8.0
+    # The query comes from a 3600-bin render averaged to 1 deg bins (synthetic_profile); the fit
+    # uses its own 1440-bin render: two different discretisations.
+    prof = synthetic_profile(dem, x, y, h, p, r, noise_deg=0.05, rng=5)
+    w = render_horizons(dem, [x], [y], azimuth_bins=1440).elevation_deg[0]
+    att = fit_attitude(prof.elevation_deg, w, h + 2.0, 0.0, 0.0)
+    assert abs(att.pitch_deg - p) < 0.3 and abs(att.roll_deg - r) < 0.3
+    assert abs(_ang(att.yaw_deg - h)) < 0.3
+
+
+def test_heading_only_mode(world):
+    dem, _ = world
+    prof = synthetic_profile(dem, 650.0, 950.0, 222.0, 2.0, -1.0, noise_deg=0.1, rng=6)
+    hf = estimate_heading(prof, dem, 653.0, 946.0, 226.0, window_deg=10.0)
+    assert abs(_ang(hf.heading_deg - 222.0)) < 1.0
+    assert hf.heading_sigma_deg > 0
+
+
+def test_featureless_horizon_gives_low_confidence():
+    y, x = np.mgrid[0:80, 0:80] * 10.0
+    dem = Dem.from_array(0.0 * x, 10.0)
+    st = MemoryStore.from_dem(dem, np.arange(300.0, 500.1, 20.0), np.arange(500.0, 299.9, -20.0))
+    q = np.full(360, 0.0) + np.random.default_rng(0).normal(0, 0.1, 360)
+    fix = locate(Profile(q, np.full(360, 0.1), "body"), db=st, dem=dem, config=CFG)
+    assert fix.confidence < 0.3
+
+
+def test_cli_locate_and_heading_from_a_profile(world, tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+    from skyfix.dem import write_dem
+    from skyfix.formats import write_profile_json
+
+    dem, _ = world
+    dem_path = write_dem(tmp_path / "dem.tif", dem)
+    prof = synthetic_profile(dem, 812.6, 701.2, 300.0, noise_deg=0.05, rng=4)
+    write_profile_json(tmp_path / "p.json", prof)
+    r = CliRunner().invoke(cli, ["locate", "--profile", str(tmp_path / "p.json"), "--dem",
+                                 str(dem_path), "--prior-x", "820", "--prior-y", "695",
+                                 "--prior-radius-m", "20", "-o", str(tmp_path / "fix.json"),
+                                 "--geojson", str(tmp_path / "fix.geojson")])
+    assert r.exit_code == 0, r.output
+    fix = json.loads((tmp_path / "fix.json").read_text())
+    assert np.hypot(fix["x"] - 812.6, fix["y"] - 701.2) < 1.5
+    gj = json.loads((tmp_path / "fix.geojson").read_text())
+    assert gj["features"][0]["geometry"]["type"] == "Point"
+    again = CliRunner().invoke(cli, ["locate", "--profile", str(tmp_path / "p.json"), "--dem",
+                                     str(dem_path), "--prior-x", "820", "--prior-y", "695",
+                                     "--prior-radius-m", "20", "-o", str(tmp_path / "fix.json")])
+    assert again.exit_code == 2 and "--overwrite" in again.output
+    no_prior = CliRunner().invoke(cli, ["locate", "--profile", str(tmp_path / "p.json"), "--dem",
+                                        str(dem_path)])
+    assert no_prior.exit_code == 2 and "prior" in no_prior.output
+    r = CliRunner().invoke(cli, ["heading", "--profile", str(tmp_path / "p.json"), "--dem",
+                                 str(dem_path), "--x", "815", "--y", "700",
+                                 "--heading-prior-deg", "305"])
+    assert r.exit_code == 0, r.output
+    assert abs(_ang(json.loads(r.output)["heading_deg"] - 300.0)) < 1.0
