@@ -156,3 +156,15 @@ def test_fast_kernel_matches_reference_on_real_dems(name):
     assert np.isfinite(d).all()
     assert np.percentile(d, 99) <= 0.05
     assert d.max() <= 0.2
+
+
+@pytest.mark.shared_data
+def test_points_on_dem_grid_lines_render_and_match_the_reference():
+    """Rays along a grid line (az 0/90/180/270 from a point on a DEM row or column) once crawled in
+    1e-6 m steps, an apparent hang; grid-aligned positions are common (5 m grids on 30 m DEMs)."""
+    dem = load_dem(shared_dem_path("sierra_nevada_30m"))
+    x = dem.x0 + 500 * dem.dx  # exactly on column 500 and row 400
+    y = dem.y0 - 400 * dem.dy
+    fast = render_horizon(dem, x, y, azimuth_bins=4, max_distance_m=20_000)
+    ref, _ = reference_horizon(dem, x, y, azimuth_bins=4, max_distance_m=20_000)
+    np.testing.assert_allclose(fast.elevation_deg[0], ref, atol=0.01)

@@ -168,17 +168,16 @@ def _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, t
         bi = i >> level
         bj = j >> level
         size = 1 << level
-        # Same near-zero threshold as the DEM-edge test: a ray along a grid line (az 90 deg has
-        # dv ~ -6e-18) whose exit would round to t itself would otherwise crawl in eps_t steps.
-        if du > 1e-15:
+        # du, dv are exactly 0 for rays along grid lines (see _render_batch).
+        if du > 0.0:
             tu = ((bj + 1) * size - u0) / du
-        elif du < -1e-15:
+        elif du < 0.0:
             tu = (bj * size - u0) / du
         else:
             tu = np.inf
-        if dv > 1e-15:
+        if dv > 0.0:
             tv = ((bi + 1) * size - v0) / dv
-        elif dv < -1e-15:
+        elif dv < 0.0:
             tv = (bi * size - v0) / dv
         else:
             tv = np.inf
@@ -261,13 +260,13 @@ def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz,
                 dv = 0.0
             # Distance to the pixel-centre hull along the ray: rays stop at the DEM edge.
             t_edge = np.inf
-            if du > 1e-15:
+            if du > 0.0:
                 t_edge = min(t_edge, (nx - 1 - u0) / du)
-            elif du < -1e-15:
+            elif du < 0.0:
                 t_edge = min(t_edge, -u0 / du)
-            if dv > 1e-15:
+            if dv > 0.0:
                 t_edge = min(t_edge, (ny - 1 - v0) / dv)
-            elif dv < -1e-15:
+            elif dv < 0.0:
                 t_edge = min(t_edge, -v0 / dv)
             t_end = min(t_edge * (1 - 1e-9), max_d)
             out_len[k, b] = t_end
