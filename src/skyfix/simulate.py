@@ -164,35 +164,49 @@ def _palette(planet: str, dust: float):
 
 
 def _rock_layout(dem: Dem, origin, truth: Truth, camera_height_m: float, az_lo: float,
-                 az_span: float, strength: float, rng: np.random.Generator) -> tuple:
+                 az_span: float, strength: float, rng: np.random.Generator, planet) -> tuple:
     """Boulders near the rover inside the viewed azimuths, (x, y, z, radius_h, radius_v) [m].
 
-    Half of them rise above the camera (so they cut the skyline whatever the terrain), the rest
-    are clutter on the ground.
+    Half of them rise above the rendered skyline behind them (by 0.3 to 3.5 deg with strength),
+    so they cut it whatever the terrain; the rest are clutter on the ground.
     """
+    from .horizon import render_horizons
+
+    hb = render_horizons(dem, [truth.x], [truth.y], camera_height_m=camera_height_m, planet=planet,
+                         azimuth_bins=720)
+    sky_el = np.nan_to_num(hb.elevation_deg[0], nan=0.0)
     n = int(round(2 + 6 * strength))
     rocks: list[tuple] = []
-    for _ in range(n * 30):
+    for attempt in range(n * 40):
         if len(rocks) >= n:
             break
-        az = math.radians(truth.yaw_deg + az_lo + rng.uniform(0, az_span))
+        az_deg = (truth.yaw_deg + az_lo + rng.uniform(0, az_span)) % 360.0
+        az = math.radians(az_deg)
         bury = rng.uniform(0.1, 0.4)  # centre above the ground, in vertical radii
-        if len(rocks) % 2 == 0:
-            top = camera_height_m + rng.uniform(0.1, 0.3 + 0.9 * strength)
-            r_v = top / (1.0 + bury)
-            r_h = r_v / rng.uniform(0.6, 0.9)
-            dist = rng.uniform(r_h + 2.0, r_h + 4.0 + 10.0 * strength)
+        # Where no boulder can reach the skyline (a steep slope down), settle for clutter.
+        cutting = len(rocks) % 2 == 0 and attempt < n * 30
+        if cutting:
+            dist = rng.uniform(3.0, 6.0 + 12.0 * strength)
         else:
-            r_h = rng.uniform(0.15, 0.3 + 0.6 * strength)
-            r_v = r_h * rng.uniform(0.5, 0.9)
-            dist = rng.uniform(r_h + 1.5, 12.0)
+            dist = rng.uniform(2.0, 12.0)
         x = origin[0] + dist * math.sin(az)
         y = origin[1] + dist * math.cos(az)
-        if not dem.contains(x, y) or not np.isfinite(g := dem.height_at(x, y)):
+        if not dem.contains(x, y) or not np.isfinite(g := float(dem.height_at(x, y))):
             continue
-        if any(math.hypot(x - q[0], y - q[1]) < r_h + q[3] for q in rocks):
+        if cutting:
+            # The top must clear the line of sight to the skyline behind it.
+            el = sky_el[int(round(az_deg * 2)) % 720] + rng.uniform(0.3, 1.0 + 2.5 * strength)
+            top = origin[2] + dist * math.tan(math.radians(min(el, 60.0)))
+            r_v = (top - g) / (1.0 + bury)
+            if not 0.2 <= r_v <= 1.0 + 1.5 * strength:  # too big for a boulder here: try again
+                continue
+        else:
+            r_v = rng.uniform(0.1, 0.2 + 0.5 * strength)
+        r_h = r_v / rng.uniform(0.6, 0.9)
+        if dist < r_h + 1.5 or any(math.hypot(x - q[0], y - q[1]) < r_h + q[3] for q in rocks):
             continue
-        rocks.append((x, y, float(g + bury * r_v), r_h, r_v))
+        zc = g + bury * r_v
+        rocks.append((x, y, zc, r_h, r_v))
     return tuple(rocks)
 
 
@@ -202,7 +216,8 @@ def make_scene(planet: str, conditions: Conditions, seed: int, *, sun_az_deg=Non
     c = conditions
     if c.clouds > 0 and planet != "earth":
         raise ParameterError("the clouds condition is for Earth only: drop it or use --planet earth")
-    haze = (40_000.0 if planet == "earth" else 20_000.0) * (1.0 - 0.93 * c.dust)
+    # Dust shortens the haze distance geometrically: 0.5 -> about 6 km on Mars, 1 -> 1.6 km.
+    haze = (40_000.0 if planet == "earth" else 20_000.0) * math.exp(-2.5 * c.dust)
     gain = 1.0 * (1.0 + 2.0 * c.overexposed) * (1.0 - 0.85 * c.dark)
     noise = 0.008 * (1.0 + 3.0 * c.dark)
     blur = 0.6 + 3.5 * c.blur
@@ -514,7 +529,7 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
     rng = np.random.default_rng([seed, 1])
     rocks = ()
     if cond.rocks > 0:
-        rocks = _rock_layout(dem, origin, truth, camera_height_m, az_lo, az_span, cond.rocks, rng)
+        rocks = _rock_layout(dem, origin, truth, camera_height_m, az_lo, az_span, cond.rocks, rng, pl)
     if cond.glare > 0 and sun_az_deg is None:
         # Put the sun inside the view, a little above the horizon.
         if mode == "frames":
