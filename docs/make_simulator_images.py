@@ -70,13 +70,13 @@ def main():
                 img = cv2.imread(str(acq / f"frame_00{k}.png"))
                 overlay(img, acq / f"frame_00{k}.skyline.json", (0, 0, 255))
                 overlay(img, acq / f"frame_00{k}.visible.skyline.json", (0, 255, 255))
-                tiles.append(cv2.resize(img, (384, 384), interpolation=cv2.INTER_AREA))
+                tiles.append(cv2.resize(img, (256, 256), interpolation=cv2.INTER_AREA))
             cv2.imwrite(str(OUT / f"sim_{stem}.png"), np.hstack(tiles))
         acq = simulate_acquisition(dem, Truth(truth[0], truth[1], 250.0), Path(tmp) / "pano",
                                    mode="panorama", planet="mars", seed=11)
         img = cv2.imread(str(acq / "pano.png"))
         overlay(img, acq / "pano.skyline.json", (0, 0, 255))
-        cv2.imwrite(str(OUT / "sim_panorama_mars.png"), cv2.resize(img, (1536, 384), interpolation=cv2.INTER_AREA))
+        cv2.imwrite(str(OUT / "sim_panorama_mars.png"), cv2.resize(img, (1024, 256), interpolation=cv2.INTER_AREA))
 
 
 if __name__ == "__main__":

@@ -464,3 +464,18 @@ def test_outside_dem_raises(hills, tmp_path):
     with pytest.raises(OutsideDemError):
         simulate_acquisition(hills, Truth(-50.0, 100.0, 0.0), tmp_path / "x")
     assert not (tmp_path / "x").exists()
+
+
+def test_antialiased_edge_carries_the_subpixel_row():
+    """Ground coverage per column equals the ground extent below the truth row, (H - 0.5) - r."""
+    from skyfix.simulate import _antialias_edge
+
+    H, W = 40, 64
+    r = np.linspace(3.0, 30.0, W) + 0.37 * np.sin(np.arange(W))
+    v = np.arange(H)[:, None]
+    img = np.where(v >= r[None, :], 0.0, 1.0)[..., None].repeat(3, axis=2)  # sky 1, ground 0
+    before = np.sum(1 - img[..., 0], axis=0)
+    _antialias_edge(img, r)
+    after = np.sum(1 - img[..., 0], axis=0)
+    np.testing.assert_allclose(after, H - 0.5 - r, atol=1e-9)
+    assert np.max(np.abs(before - (H - 0.5 - r))) > 0.4  # point sampling alone misses it

@@ -313,8 +313,28 @@ def _clouds(direction: np.ndarray, scene: Scene, strength: float) -> np.ndarray:
     return cover * np.clip((dz - 0.02) / 0.08, 0, 1)
 
 
+def _antialias_edge(img: np.ndarray, edge_rows: np.ndarray) -> None:
+    """Blend the pixel holding each column's sub-pixel skyline row by its ground coverage.
+
+    A pixel centre is ground when ``v >= r``; the pixel ``p = round(r)`` spans ``[p - 0.5, p + 0.5]``
+    and is ground over ``p + 0.5 - r`` of it. Mixing its colour with its sky (above) or ground
+    (below) neighbour puts the image's edge on the truth row, not on the pixel grid.
+    """
+    H = img.shape[0]
+    cols = np.flatnonzero(np.isfinite(edge_rows))
+    r = edge_rows[cols]
+    p = np.round(r).astype(int)
+    ok = (p >= 1) & (p <= H - 2)
+    cols, r, p = cols[ok], r[ok], p[ok]
+    f = np.clip(p + 0.5 - r, 0.0, 1.0)[:, None]
+    centre_ground = p >= r
+    ground = np.where(centre_ground[:, None], img[p, cols], img[p + 1, cols])
+    sky = np.where(centre_ground[:, None], img[p - 1, cols], img[p, cols])
+    img[p, cols] = f * ground + (1 - f) * sky
+
+
 def shade(cast: CastResult, scene: Scene, *, focal_px: float, rng: np.random.Generator,
-          sun_pixel=None, vignetting=True) -> np.ndarray:
+          sun_pixel=None, vignetting=True, edge_rows: np.ndarray | None = None) -> np.ndarray:
     """Render a :class:`CastResult` to an 8-bit RGB image ``(H, W, 3)``.
 
     focal_px : [px/rad] angular resolution (for texture filtering and blur scale)
@@ -362,6 +382,8 @@ def shade(cast: CastResult, scene: Scene, *, focal_px: float, rng: np.random.Gen
     haze = 1.0 - np.exp(-np.where(np.isfinite(dist), dist, 0.0) / scene.haze_m)
     surf = surf * (1 - haze[..., None]) + horizon * haze[..., None]
     img = np.where((kind == 0)[..., None], sky, surf)
+    if edge_rows is not None:
+        _antialias_edge(img, edge_rows)
 
     if c.glare > 0:
         ang = np.arccos(np.clip(d @ sun, -1, 1))
@@ -455,14 +477,16 @@ def _render_one(dem, origin, proj: Projection, scene: Scene, planet, name: str, 
     cast = cast_image(dem, origin, proj, planet=planet, rocks=rocks)
     terrain_sky = ~np.isfinite(cast.terrain_t)
     rows = column_skyline(dem, origin, proj, terrain_sky, planet=planet)
-    img = shade(cast, scene, focal_px=focal_px, rng=rng, sun_pixel=sun_pixel, vignetting=vignetting)
+    vis = rows
+    if len(rocks):
+        vis = column_skyline(dem, origin, proj, cast.kind == 0, planet=planet, rocks=rocks)
+    img = shade(cast, scene, focal_px=focal_px, rng=rng, sun_pixel=sun_pixel, vignetting=vignetting,
+                edge_rows=vis)
     _write_png(out / name, img)
     stem = name[: -len(".png")]
     write_skyline_json(out / f"{stem}.skyline.json", Skyline(rows, proj.width, proj.height, name))
     info = {"image": name, "terrain_skyline_columns": int(np.isfinite(rows).sum())}
     if len(rocks):
-        vis_sky = cast.kind == 0
-        vis = column_skyline(dem, origin, proj, vis_sky, planet=planet, rocks=rocks)
         write_skyline_json(out / f"{stem}.visible.skyline.json", Skyline(vis, proj.width, proj.height, name))
         info["rock_columns"] = int(np.sum(np.isfinite(vis) & (~np.isfinite(rows) | (np.abs(vis - rows) > 0.5))))
     return info
