@@ -327,6 +327,7 @@ def confidence_from_features(feat: dict, model: dict | None = None, key: str = "
     scale = m.get("scale", [1.0] * len(names))
     z = m["intercept"] + sum(c * (feat[name] - mu) / sd
                              for c, name, mu, sd in zip(m["coef"], names, mean, scale))
+    z -= m.get("logit_offset", 0.0)  # a conservative shift set where the 0.9 bin fell short
     p = 1.0 / (1.0 + math.exp(-max(min(z, 50.0), -50.0)))
     # Platt-scaled probabilities are binned in the isotonic table when present.
     table = m.get("isotonic")
