@@ -1,120 +1,254 @@
-"""Fit the confidence model of ``skyfix.pose`` on simulated fixes and print a reliability table.
+"""Fit the confidence models of ``skyfix.pose`` on simulated fixes and print reliability tables.
 
-For each shared DEM: a small skyline store (``--area-m`` square, ``--spacing-m`` grid) is rendered
-in memory, then rovers at random off-grid positions, headings and (for a share of the cases)
-pitch/roll up to 10 deg with a zero prior are simulated with noise, outliers and partial views
-(``skyfix.pose.synthetic_profile``). Each fix is "correct" when within ``--tolerance-m``.
-A logistic regression on ``skyfix.pose.FEATURES`` is fitted and written to
-``src/skyfix/models/confidence.json`` (with an isotonic table on top when there are enough cases).
+Three scenario keys, each with its own tolerance (``skyfix.pose.SCENARIOS``):
 
-    PYTHONPATH=src python scripts/calibrate_confidence.py --cases 40 --out src/skyfix/models/confidence.json
+- ``locate``: scenario 1, a database search (a small real store built with ``skyfix build-db``),
+  correct within 5 m;
+- ``locate_prior``: scenario 2, DEM only over a 40 x 40 m prior area (the truth drifted by up to
+  20 m), correct within 1 m;
+- ``heading``: scenario 3, ``estimate_heading`` at a rough position 0/5/10/20 m off, heading prior
+  up to 5 deg off, correct within 1 deg.
+
+Query profiles come from ``skyfix.pose.synthetic_profile`` (dense render at an off-grid true
+pose, exact rotation into the body frame): noise 0.05-0.4 deg, 0-3 % outlier bins, views of
+120-360 deg; a third of the cases ("LREL") pitch/roll up to 10 deg with a zero prior; a sixth
+("low relief") at the flattest-horizon position among 12 random ones. Every case is appended to a
+JSON-lines file as it finishes (``--cases``), so runs resume and can be split per DEM and
+scenario; ``--fit`` then fits a standardised logistic model per key on ``skyfix.pose.FEATURES``,
+prints the 5-fold cross-validated reliability table and writes ``src/skyfix/models/confidence.json``.
+
+    skyfix build-db DEM -o STORE.zarr --bounds ... --spacing-m 5 --workers 0
+    PYTHONPATH=src python scripts/calibrate_confidence.py simulate --dem sierra_nevada_30m.tif \\
+        --store /tmp/pc/sierra_1500_5m.zarr --scenario locate --n 40 --cases /tmp/pc/cases.jsonl
+    PYTHONPATH=src python scripts/calibrate_confidence.py fit --cases /tmp/pc/cases.jsonl
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dem"
-DEMS = ["sierra_nevada_30m.tif", "south_glacier_20m.tif"]
+MODEL_OUT = Path(__file__).resolve().parents[1] / "src" / "skyfix" / "models" / "confidence.json"
+TOLERANCE = {"locate": 5.0, "locate_prior": 1.0, "heading": 1.0}
 
 
-def simulate_cases(dem_name, n_cases, rng, area_m, spacing_m, tolerance_m):
-    from skyfix.dem import load_dem
-    from skyfix.match import MemoryStore
-    from skyfix.pose import FEATURES, locate, synthetic_profile
+def _ang(a):
+    return (a + 180.0) % 360.0 - 180.0
 
-    dem = load_dem(DATA / dem_name)
+
+def _area(dem, store=None, half_m=750.0):
+    """(x0, y0, x1, y1) [m]: the store's extent, or a square at the DEM's centre."""
+    if store is not None:
+        return tuple(float(b) for b in store.bounds)
     x0, y0, x1, y1 = dem.bounds
     cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
-    half = area_m / 2
-    xs = np.arange(cx - half, cx + half + 1e-6, spacing_m)
-    ys = np.arange(cy + half, cy - half - 1e-6, -spacing_m)
+    return cx - half_m, cy - half_m, cx + half_m, cy + half_m
+
+
+def draw_case(dem, rng, area, i, margin_m=25.0, kind=None):
+    """One simulated rover: true pose and measurement conditions (a dict)."""
+    from skyfix.horizon import render_horizons
+
+    x0, y0, x1, y1 = area
+    kind = kind or ("lrel" if i % 3 == 2 else "low_relief" if i % 6 == 1 else "ref")
+    pts = rng.uniform([x0 + margin_m, y0 + margin_m], [x1 - margin_m, y1 - margin_m], (12, 2))
+    if kind == "low_relief":
+        h = render_horizons(dem, pts[:, 0], pts[:, 1], azimuth_bins=360).elevation_deg
+        tx, ty = pts[int(np.argmin(np.nanstd(h, axis=1)))]
+    else:
+        tx, ty = pts[0]
+    p, r = (rng.uniform(-10, 10, 2) if kind == "lrel" else (0.0, 0.0))
+    return {"kind": kind, "x": float(tx), "y": float(ty), "heading_deg": float(rng.uniform(0, 360)),
+            "pitch_deg": float(p), "roll_deg": float(r), "noise_deg": float(rng.uniform(0.05, 0.4)),
+            "outlier_fraction": float(rng.uniform(0.0, 0.03)),
+            "coverage_deg": float(rng.choice([360.0, 360.0, 240.0, 120.0])),
+            "seed": int(rng.integers(2**31))}
+
+
+def run_case(scenario, dem, case, rng, store=None):
+    """Simulate the query, run the scenario's estimator, return the labelled row (a dict)."""
+    from skyfix.pose import FEATURES, estimate_heading, locate, synthetic_profile
+
+    c = case
+    prof = synthetic_profile(dem, c["x"], c["y"], c["heading_deg"], c["pitch_deg"], c["roll_deg"],
+                             noise_deg=c["noise_deg"], outlier_fraction=c["outlier_fraction"],
+                             coverage_deg=c["coverage_deg"], rng=c["seed"])
     t = time.perf_counter()
-    st = MemoryStore.from_dem(dem, xs, ys)
-    print(f"{dem_name}: store {st.shape} rendered in {time.perf_counter() - t:.0f} s", flush=True)
-    rows = []
-    for i in range(n_cases):
-        tx = rng.uniform(cx - half + spacing_m, cx + half - spacing_m)
-        ty = rng.uniform(cy - half + spacing_m, cy + half - spacing_m)
-        h = rng.uniform(0, 360)
-        tilt = i % 3 == 2
-        p, r = (rng.uniform(-10, 10, 2) if tilt else (0.0, 0.0))
-        noise = rng.uniform(0.1, 0.3)
-        cov = rng.choice([360.0, 360.0, 240.0, 150.0])
-        prof = synthetic_profile(dem, tx, ty, h, p, r, noise_deg=noise, outlier_fraction=0.03,
-                                 coverage_deg=cov, rng=rng)
-        fix = locate(prof, db=st, dem=dem)
-        err = float(np.hypot(fix.x - tx, fix.y - ty))
-        herr = float(abs((fix.heading_deg - h + 180) % 360 - 180))
-        rows.append({"dem": dem_name, "err_m": err, "heading_err_deg": herr, "tilt": bool(tilt),
-                     "coverage_deg": cov, "noise_deg": noise, "correct": err <= tolerance_m,
-                     "confidence_before": fix.confidence,
-                     **{k: fix.features[k] for k in FEATURES}})
-        print(f"  case {i}: err {err:6.2f} m heading {herr:5.2f} deg tilt={tilt} cov={cov:.0f} "
-              f"conf={fix.confidence:.2f}", flush=True)
-    return rows
+    row = dict(c, scenario=scenario)
+    if scenario == "heading":
+        pos_err = float(rng.choice([0.0, 5.0, 10.0, 20.0]))
+        a = rng.uniform(0, 2 * math.pi)
+        rx, ry = c["x"] + pos_err * math.sin(a), c["y"] + pos_err * math.cos(a)
+        h0 = c["heading_deg"] + rng.uniform(-5, 5)
+        fix = estimate_heading(prof, dem, rx, ry, h0 % 360.0, 10.0)
+        herr = abs(_ang(fix.heading_deg - c["heading_deg"]))
+        row.update(position_error_m=pos_err, heading_err_deg=herr, err=herr,
+                   sigma=fix.heading_sigma_deg)
+    else:
+        if scenario == "locate":
+            fix = locate(prof, db=store, dem=dem)
+        else:
+            d = rng.uniform(0, 20.0)
+            a = rng.uniform(0, 2 * math.pi)
+            prior = (c["x"] + d * math.sin(a), c["y"] + d * math.cos(a))
+            fix = locate(prof, dem=dem, prior_xy=prior, prior_radius_m=20.0)
+        err = float(math.hypot(fix.x - c["x"], fix.y - c["y"]))
+        row.update(err_m=err, err=err, heading_err_deg=abs(_ang(fix.heading_deg - c["heading_deg"])),
+                   pitch_err_deg=fix.pitch_deg - c["pitch_deg"], roll_err_deg=fix.roll_deg - c["roll_deg"],
+                   sigma=fix.position_sigma_m)
+    feats = fix.features
+    row.update(correct=bool(row["err"] <= TOLERANCE[scenario]), confidence=float(fix.confidence),
+               seconds=time.perf_counter() - t, **{k: feats.get(k) for k in FEATURES})
+    return row
 
 
-def reliability(conf, correct, edges=(0, 0.5, 0.7, 0.9, 1.0001)):
-    print("confidence bin   n   mean conf  share correct")
+def cmd_simulate(args):
+    from skyfix.dem import load_dem
+
+    dem_path = Path(args.dem) if Path(args.dem).exists() else DATA / args.dem
+    dem = load_dem(dem_path)
+    store = None
+    if args.store:
+        from skyfix.database import open_database
+
+        store = open_database(args.store)
+    if args.scenario == "locate" and store is None:
+        raise SystemExit("scenario 'locate' needs --store (a database built with skyfix build-db)")
+    area = _area(dem, store)
+    rng = np.random.default_rng([args.seed, zlib.crc32(dem_path.name.encode()),
+                                 list(TOLERANCE).index(args.scenario)])
+    out = Path(args.cases)
+    done = 0
+    if out.exists():
+        done = sum(1 for ln in out.read_text().splitlines()
+                   if ln and json.loads(ln)["dem"] == dem_path.name
+                   and json.loads(ln)["scenario"] == args.scenario and json.loads(ln)["seed_run"] == args.seed)
+    for i in range(args.n):
+        case = draw_case(dem, rng, area, i)
+        if i < done:  # resume: the same draws, skip what is on file
+            continue
+        row = run_case(args.scenario, dem, case, rng, store)
+        row.update(dem=dem_path.name, seed_run=args.seed, index=i)
+        with out.open("a") as f:
+            f.write(json.dumps(row) + "\n")
+        print(f"{args.scenario:12s} {dem_path.name:22s} {i:3d} {case['kind']:10s} err {row['err']:7.2f} "
+              f"{'ok ' if row['correct'] else 'BAD'} conf {row['confidence']:.2f} {row['seconds']:5.1f} s",
+              flush=True)
+
+
+def reliability(conf, correct, edges=(0.0, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0001), out=print):
+    """Print a reliability table: per confidence bin, count, mean confidence, share correct."""
+    out("  confidence bin    n  mean conf  share correct")
     for lo, hi in zip(edges[:-1], edges[1:]):
         k = (conf >= lo) & (conf < hi)
         if k.any():
-            print(f"[{lo:.2f}, {min(hi, 1):.2f})  {k.sum():4d}   {conf[k].mean():.2f}       {correct[k].mean():.2f}")
+            out(f"  [{lo:.2f}, {min(hi, 1):.2f})  {k.sum():4d}     {conf[k].mean():.2f}       {correct[k].mean():.2f}")
     k = conf >= 0.9
-    if k.any():
-        print(f"conf >= 0.9: {k.sum()} fixes, {correct[k].mean():.0%} correct")
+    out(f"  conf >= 0.9: {k.sum()} fixes, " + (f"{correct[k].mean():.0%} correct" if k.any() else "none"))
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cases", type=int, default=40, help="cases per DEM")
-    ap.add_argument("--area-m", type=float, default=1000.0)
-    ap.add_argument("--spacing-m", type=float, default=10.0)
-    ap.add_argument("--tolerance-m", type=float, default=5.0)
-    ap.add_argument("--seed", type=int, default=7)
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "src" / "skyfix" / "models" / "confidence.json"))
-    ap.add_argument("--cases-json", default="calibration_cases.json")
-    args = ap.parse_args()
-    if not DATA.is_dir():
-        raise SystemExit(f"shared DEMs not found at {DATA}")
-    from sklearn.isotonic import IsotonicRegression
+def fit_key(rows, key, features, c_reg=1.0, folds=5, seed=0):
+    """Standardised logistic model for one scenario key; returns (model dict, cv predictions)."""
     from sklearn.linear_model import LogisticRegression
+    from sklearn.model_selection import StratifiedKFold
 
+    x = np.array([[r[f] for f in features] for r in rows], float)
+    y = np.array([r["correct"] for r in rows], int)
+    mean, scale = x.mean(axis=0), x.std(axis=0)
+    scale[scale < 1e-9] = 1.0
+    xs = (x - mean) / scale
+    model = {"features": list(features), "mean": mean.tolist(), "scale": scale.tolist(),
+             "tolerance": TOLERANCE[key], "n_cases": len(rows), "share_correct": float(y.mean())}
+    if y.min() == y.max():
+        # One outcome only: a constant, shrunk towards 1/2 by the count (rule of succession).
+        p = (y.sum() + 1) / (len(y) + 2)
+        model.update(coef=[0.0] * len(features), intercept=float(np.log(p / (1 - p))))
+        return model, np.full(len(y), p)
+    cv = np.empty(len(y))
+    n_f = max(2, min(folds, int(min(np.bincount(y)))))
+    for tr, te in StratifiedKFold(n_f, shuffle=True, random_state=seed).split(xs, y):
+        if len(set(y[tr])) < 2:
+            cv[te] = y[tr].mean()
+            continue
+        m = LogisticRegression(C=c_reg, max_iter=2000).fit(xs[tr], y[tr])
+        cv[te] = m.predict_proba(xs[te])[:, 1]
+    m = LogisticRegression(C=c_reg, max_iter=2000).fit(xs, y)
+    model.update(coef=m.coef_[0].tolist(), intercept=float(m.intercept_[0]))
+    return model, cv
+
+
+def cmd_fit(args):
     from skyfix._io import write_json
     from skyfix.pose import FEATURES
 
-    rng = np.random.default_rng(args.seed)
-    rows = []
-    for name in DEMS:
-        rows += simulate_cases(name, args.cases, rng, args.area_m, args.spacing_m, args.tolerance_m)
-    write_json(args.cases_json, rows)
-    x = np.array([[r[k] for k in FEATURES] for r in rows])
-    y = np.array([r["correct"] for r in rows], int)
-    print(f"{len(rows)} cases, {y.mean():.0%} correct within {args.tolerance_m} m")
-    model = {"features": list(FEATURES), "tolerance_m": args.tolerance_m, "n_cases": len(rows)}
-    if y.min() == y.max():
-        print("all cases have the same outcome: cannot fit; writing a constant model")
-        lr_coef, lr_b = [0.0] * len(FEATURES), float(np.log((y.mean() + 0.02) / (1.02 - y.mean())))
-    else:
-        # C small: few cases, keep the fit smooth; cross-validated predictions for the table.
-        lr = LogisticRegression(C=0.5, max_iter=1000).fit(x, y)
-        lr_coef, lr_b = lr.coef_[0].tolist(), float(lr.intercept_[0])
-        from sklearn.model_selection import cross_val_predict
-
-        cv = cross_val_predict(LogisticRegression(C=0.5, max_iter=1000), x, y, cv=5,
-                               method="predict_proba")[:, 1]
-        print("reliability (5-fold cross-validated logistic):")
+    rows = [json.loads(ln) for p in args.cases for ln in Path(p).read_text().splitlines() if ln.strip()]
+    out_model = {"_about": "logistic confidence models per scenario key, fitted by "
+                           "scripts/calibrate_confidence.py on simulated fixes"}
+    all_cv, all_y = [], []
+    for key in TOLERANCE:
+        rk = [r for r in rows if r["scenario"] == key and all(r.get(f) is not None for f in FEATURES)]
+        if not rk:
+            print(f"{key}: no cases")
+            continue
+        model, cv = fit_key(rk, key, FEATURES, c_reg=args.c)
+        y = np.array([r["correct"] for r in rk], bool)
+        # Guard of the >= 0.9 claim: the smallest logit offset after which the cross-validated
+        # fixes at >= 0.9 are >= 90 % correct (0 when they already are).
+        z = np.log(np.clip(cv, 1e-9, 1 - 1e-9) / np.clip(1 - cv, 1e-9, 1))
+        offset = 0.0
+        for offset in np.arange(0.0, 10.01, 0.1):
+            k = 1 / (1 + np.exp(-(z - offset))) >= 0.9
+            if not k.any() or y[k].mean() >= 0.9:
+                break
+        cv = 1 / (1 + np.exp(-(z - offset)))
+        model["logit_offset"] = float(offset)
+        print(f"\n{key}: {len(rk)} cases on {sorted({r['dem'] for r in rk})}, "
+              f"{y.mean():.0%} correct within {TOLERANCE[key]} {'deg' if key == 'heading' else 'm'}")
+        print("  coef (standardised): " + ", ".join(f"{f}={c:+.2f}" for f, c in zip(FEATURES, model["coef"])))
+        print(" 5-fold cross-validated reliability:")
         reliability(cv, y)
-    model.update({"coef": lr_coef, "intercept": lr_b})
-    out = {"locate": model}
-    write_json(args.out, out)
+        model["cv_conf_ge_0.9"] = {"n": int((cv >= 0.9).sum()),
+                                   "share_correct": float(y[cv >= 0.9].mean()) if (cv >= 0.9).any() else None}
+        if len(rk) < args.min_cases:
+            print(f"  not written: {len(rk)} < --min-cases {args.min_cases} (locate keeps its capped fallback)")
+        else:
+            out_model[key] = model
+        all_cv.append(cv)
+        all_y.append(y)
+    if all_cv:
+        print("\nall scenarios, cross-validated:")
+        reliability(np.concatenate(all_cv), np.concatenate(all_y))
+    if args.dry_run:
+        return
+    write_json(args.out, out_model)
     print(f"wrote {args.out}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("simulate", help="simulate labelled fixes, append them to --cases")
+    s.add_argument("--dem", required=True, help="a DEM file, or a name under ../shared/data/dem")
+    s.add_argument("--store", help="skyline database (zarr) for scenario 'locate'")
+    s.add_argument("--scenario", choices=list(TOLERANCE), required=True)
+    s.add_argument("--n", type=int, default=40)
+    s.add_argument("--seed", type=int, default=7)
+    s.add_argument("--cases", required=True, help="JSON-lines file the cases are appended to")
+    f = sub.add_parser("fit", help="fit the models from case files and print reliability")
+    f.add_argument("--cases", nargs="+", required=True)
+    f.add_argument("--c", type=float, default=1.0, help="inverse L2 strength of the logistic fit")
+    f.add_argument("--out", default=str(MODEL_OUT))
+    f.add_argument("--min-cases", type=int, default=30, help="fewer cases: the key is not written")
+    f.add_argument("--dry-run", action="store_true", help="print the tables, write nothing")
+    args = ap.parse_args(argv)
+    {"simulate": cmd_simulate, "fit": cmd_fit}[args.cmd](args)
 
 
 if __name__ == "__main__":

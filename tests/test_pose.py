@@ -155,3 +155,27 @@ def test_cli_locate_and_heading_from_a_profile(world, tmp_path):
                                  "--heading-prior-deg", "305"])
     assert r.exit_code == 0, r.output
     assert abs(_ang(json.loads(r.output)["heading_deg"] - 300.0)) < 1.0
+
+
+def test_tilted_query_with_zero_prior_is_located(world):
+    # 10 deg class pitch/roll with a level prior: the source study's failure case (hundreds of m).
+    dem, st = world
+    tx, ty, th, p, r = 847.3, 766.1, 41.0, 8.0, -9.0
+    prof = synthetic_profile(dem, tx, ty, th, p, r, noise_deg=0.1, rng=8)
+    fix = locate(prof, db=st, dem=dem, config=CFG)
+    assert np.hypot(fix.x - tx, fix.y - ty) < 3.0
+    assert abs(_ang(fix.heading_deg - th)) < 0.5
+    assert abs(fix.pitch_deg - p) < 0.5 and abs(fix.roll_deg - r) < 0.5
+
+
+def test_residual_level_matches_the_simulated_noise_despite_outliers(world):
+    dem, _ = world
+    from skyfix.horizon import render_horizons
+
+    x, y, h = 700.0, 880.0, 150.0
+    prof = synthetic_profile(dem, x, y, h, noise_deg=0.2, outlier_fraction=0.03, rng=9)
+    w = render_horizons(dem, [x], [y], azimuth_bins=1440).elevation_deg[0]
+    att = fit_attitude(prof.elevation_deg, w, h, 0.0, 0.0, restarts_deg=(0.0,))
+    # Gaussian noise 0.2 deg: the robust level estimates it; the plain rms is inflated by outliers.
+    assert 0.16 < att.robust_rms_deg < 0.25
+    assert att.rms_deg > att.robust_rms_deg

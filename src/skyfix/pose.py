@@ -110,16 +110,19 @@ class Attitude:
     yaw_sigma_deg: float
     pitch_sigma_deg: float
     roll_sigma_deg: float
+    robust_rms_deg: float = float("nan")  # 1.4826 * MAD: the noise level, outlier bins ignored
 
 
 def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.0, *,
                  restarts_deg=(-2.5, 0.0, 2.5), prior_pitch_deg=0.0, prior_roll_deg=0.0,
-                 yaw_window_deg=None, iterations=12) -> Attitude:
+                 yaw_window_deg=None, iterations=12, accept_deg=None) -> Attitude:
     """Yaw, pitch, roll [deg] (and a height offset) that best map the world horizon onto the query.
 
     Gauss-Newton with a numerical Jacobian and Huber weights (outlier bins), restarted from
     every combination of ``restarts_deg`` offsets on the three axes; the lowest robust cost wins.
-    ``yaw_window_deg`` keeps yaw within that distance of ``yaw0_deg``.
+    ``yaw_window_deg`` keeps yaw within that distance of ``yaw0_deg``. With ``accept_deg`` [deg],
+    the fit from the first guess alone is kept when its robust residual level (1.4826 MAD) is
+    below it: the restarts are there to escape false minima, which do not fit at the noise level.
     """
     q = np.asarray(query_deg, np.float64)
     obs = np.isfinite(q)
@@ -139,42 +142,46 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
 
     best = None
     h = 0.02
-    for dy in restarts_deg:
-        for dp in restarts_deg:
-            for dr in restarts_deg:
-                th = np.array([yaw0_deg + dy, pitch0_deg + dp, roll0_deg + dr], float)
-                lam = 1e-3
-                r = resid(th)
-                w, cost = robust(r)
-                for _ in range(iterations):
-                    jac = np.empty((r.size, 4))
-                    for i in range(3):
-                        e = np.zeros(3)
-                        e[i] = h
-                        jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)  # dr/dtheta
-                    jac[:, 3] = -1.0  # dr/d(offset): a nuisance, the median is removed anyway
-                    jw = jac * w[:, None]
-                    a = jac.T @ jw
-                    g = jw.T @ r
-                    step = np.linalg.solve(a + lam * np.diag(np.diag(a) + 1e-9), -g)[:3]
-                    th_new = th + step
-                    if yaw_window_deg is not None:
-                        dyaw = (th_new[0] - yaw0_deg + 180.0) % 360.0 - 180.0
-                        th_new[0] = yaw0_deg + np.clip(dyaw, -yaw_window_deg, yaw_window_deg)
-                    th_new[1:] = np.clip(th_new[1:], -30.0, 30.0)
-                    r_new = resid(th_new)
-                    w_new, cost_new = robust(r_new)
-                    if cost_new < cost:
-                        th, r, w, cost = th_new, r_new, w_new, cost_new
-                        lam = max(lam / 4, 1e-6)
-                        if np.max(np.abs(step)) < 1e-4:
-                            break
-                    else:
-                        lam *= 8
-                        if lam > 1e4:
-                            break
-                if best is None or cost < best[0]:
-                    best = (cost, th.copy(), r.copy(), w.copy())
+    offsets = [(0.0, 0.0, 0.0)] + [(dy, dp, dr) for dy in restarts_deg for dp in restarts_deg
+                                   for dr in restarts_deg if (dy, dp, dr) != (0.0, 0.0, 0.0)]
+    for k_start, (dy, dp, dr) in enumerate(offsets):
+        if k_start == 1 and accept_deg is not None:
+            rb = best[2]
+            if 1.4826 * np.median(np.abs(rb - np.median(rb))) <= accept_deg:
+                break
+        th = np.array([yaw0_deg + dy, pitch0_deg + dp, roll0_deg + dr], float)
+        lam = 1e-3
+        r = resid(th)
+        w, cost = robust(r)
+        for _ in range(iterations):
+            jac = np.empty((r.size, 4))
+            for i in range(3):
+                e = np.zeros(3)
+                e[i] = h
+                jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)  # dr/dtheta
+            jac[:, 3] = -1.0  # dr/d(offset): a nuisance, the median is removed anyway
+            jw = jac * w[:, None]
+            a = jac.T @ jw
+            g = jw.T @ r
+            step = np.linalg.solve(a + lam * np.diag(np.diag(a) + 1e-9), -g)[:3]
+            th_new = th + step
+            if yaw_window_deg is not None:
+                dyaw = (th_new[0] - yaw0_deg + 180.0) % 360.0 - 180.0
+                th_new[0] = yaw0_deg + np.clip(dyaw, -yaw_window_deg, yaw_window_deg)
+            th_new[1:] = np.clip(th_new[1:], -30.0, 30.0)
+            r_new = resid(th_new)
+            w_new, cost_new = robust(r_new)
+            if cost_new < cost:
+                th, r, w, cost = th_new, r_new, w_new, cost_new
+                lam = max(lam / 4, 1e-6)
+                if np.max(np.abs(step)) < 1e-4:
+                    break
+            else:
+                lam *= 8
+                if lam > 1e4:
+                    break
+        if best is None or cost < best[0]:
+            best = (cost, th.copy(), r.copy(), w.copy())
     cost, th, r, w = best
     jac = np.empty((r.size, 4))
     for i in range(3):
@@ -189,7 +196,8 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
     except np.linalg.LinAlgError:
         sd = np.full(3, np.inf)
     rms = float(np.sqrt(np.mean(r * r)))
-    return Attitude(float(th[0] % 360.0), float(th[1]), float(th[2]), rms, *map(float, sd))
+    mad = float(1.4826 * np.median(np.abs(r - np.median(r))))
+    return Attitude(float(th[0] % 360.0), float(th[1]), float(th[2]), rms, *map(float, sd), mad)
 
 
 # --- the fix ---------------------------------------------------------------------------------------
@@ -239,9 +247,12 @@ class HeadingFix:
     score: float
     x: float
     y: float
+    features: dict = field(default_factory=dict, compare=False)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        d.pop("features")
+        return d
 
 
 def _crs_and_lonlat(crs_wkt: str, x: float, y: float):
@@ -262,18 +273,35 @@ def _crs_and_lonlat(crs_wkt: str, x: float, y: float):
 
 # --- confidence ------------------------------------------------------------------------------------
 
-FEATURES = ("log_ratio", "log_rms_over_noise", "log_relief", "observed_fraction")
+FEATURES = ("log_ratio", "log_rms_over_noise", "log_relief", "observed_fraction", "log_sigma",
+            "tilt_deg")
+
+#: The confidence model per scenario key, and what "correct" means there.
+SCENARIOS = {"locate": "scenario 1: database search, correct within 5 m",
+             "locate_prior": "scenario 2: DEM only over a prior area, correct within 1 m",
+             "heading": "scenario 3: heading from a rough position, correct within 1 deg"}
 
 
-def confidence_features(best_score, other_score, rms_deg, noise_deg, relief_deg, observed_fraction):
-    """Features of the score landscape for the confidence model (see ``FEATURES``)."""
+def confidence_features(best_score, other_score, rms_deg, noise_deg, relief_deg, observed_fraction,
+                        sigma=1.0, tilt_deg=0.0):
+    """Features of the score landscape for the confidence model (see ``FEATURES``).
+
+    best_score, other_score : [deg^2] mean squared residual of the fix and of the best answer in
+        another basin (inf when there is none)
+    rms_deg : [deg] robust residual level of the fix (outlier bins excluded)
+    noise_deg : [deg] expected detection noise; relief_deg : [deg] std of the query profile
+    sigma : the fix's own 1-sigma (position [m] or heading [deg]); tilt_deg : [deg] estimated
+        pitch/roll away from the prior
+    """
     eps = 1e-4
-    ratio = (other_score + eps) / (best_score + eps) if np.isfinite(other_score) else 100.0
+    ratio = (other_score + eps) / (best_score + eps) if np.isfinite(other_score) else 1e4
     return {
         "log_ratio": float(np.log(min(max(ratio, 1.0), 1e4))),
         "log_rms_over_noise": float(np.log((rms_deg + 1e-3) / max(noise_deg, 0.02))),
         "log_relief": float(np.log(relief_deg + 1e-3)),
         "observed_fraction": float(observed_fraction),
+        "log_sigma": float(np.log(min(max(sigma, 1e-3), 1e4))) if np.isfinite(sigma) else float(np.log(1e4)),
+        "tilt_deg": float(tilt_deg),
     }
 
 
@@ -294,7 +322,12 @@ def confidence_from_features(feat: dict, model: dict | None = None, key: str = "
     if not model or key not in model:
         return float(0.5 * (1 - math.exp(-feat["log_ratio"])))
     m = model[key]
-    z = m["intercept"] + sum(c * feat[name] for c, name in zip(m["coef"], m["features"]))
+    names = m["features"]
+    mean = m.get("mean", [0.0] * len(names))
+    scale = m.get("scale", [1.0] * len(names))
+    z = m["intercept"] + sum(c * (feat[name] - mu) / sd
+                             for c, name, mu, sd in zip(m["coef"], names, mean, scale))
+    z -= m.get("logit_offset", 0.0)  # a conservative shift set where the 0.9 bin fell short
     p = 1.0 / (1.0 + math.exp(-max(min(z, 50.0), -50.0)))
     # Platt-scaled probabilities are binned in the isotonic table when present.
     table = m.get("isotonic")
@@ -391,6 +424,51 @@ def _harmonic_tilt(q, world_shifted):
     return float(-c[1]), float(c[2])
 
 
+def _refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, planet,
+                      prior_pitch_deg, prior_roll_deg, noise):
+    """Attitude, then position, then attitude again around one candidate (x, y [m], heading [deg]).
+
+    The attitude comes first: with 10 deg of pitch/roll the tilt-harmonic removal of the shift
+    search is only approximate and biased the fine position by 5-15 m; levelling the query with
+    the attitude fitted at the candidate (far horizon: insensitive to metres) removes that bias.
+    Returns (x, y, score, local, attitude)."""
+    from .horizon import render_horizons
+
+    n = q.size
+
+    def world_at(x, y):
+        return render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
+                               azimuth_bins=config.render_bins).elevation_deg[0]
+
+    def fit(world, yaw0, p0, r0, restarts):
+        return fit_attitude(q, world, yaw0, p0, r0, restarts_deg=restarts,
+                            prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg,
+                            accept_deg=2.0 * max(noise, 0.05))
+
+    def level(att):
+        if max(abs(att.pitch_deg - prior_pitch_deg), abs(att.roll_deg - prior_roll_deg)) < 0.3:
+            return q
+        ql = relevel(q, att.pitch_deg, att.roll_deg, prior_pitch_deg=prior_pitch_deg,
+                     prior_roll_deg=prior_roll_deg)
+        return ql if np.isfinite(ql).sum() >= 20 else q
+
+    kw = dict(camera_height_m=camera_height_m, planet=planet,
+              remove_tilt=config.match.remove_tilt, workers=config.match.workers)
+    world = world_at(cx, cy)
+    p0, r0 = _harmonic_tilt(q, body_profile(world, ch, n_bins=n))
+    att = fit(world, ch, prior_pitch_deg + p0, prior_roll_deg + r0, config.restarts_deg)
+    x, y, s, hd, local = _refine(dem, level(att), cx, cy, step0, config.levels, **kw)
+    att = fit(world_at(x, y), att.yaw_deg, att.pitch_deg, att.roll_deg, (0.0,))
+    ql = level(att)
+    if ql is not q and config.levels > 1:
+        # The attitude moved with the position: redo the finest level with the new levelling.
+        fine = step0 / 4.0 ** (config.levels - 1)
+        x, y, s, hd, local = _refine(dem, ql, x, y, fine, 1, **kw)
+        att = fit(world_at(x, y), att.yaw_deg, att.pitch_deg, att.roll_deg, (0.0,))
+    return x, y, s, local, att
+
+
+
 def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
            prior_pitch_deg: float = 0.0, prior_roll_deg: float = 0.0,
            camera_height_m: float | None = None, planet=None, config: PoseConfig = PoseConfig(),
@@ -459,30 +537,9 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         from .horizon import render_horizons
 
         for cx, cy, cs, ch in cands[: config.refine_candidates]:
-            x, y, s, hd, local = _refine(dem, q, cx, cy, step0 * 4 / 4, config.levels,
-                                         camera_height_m=camera_height_m, planet=planet,
-                                         remove_tilt=config.match.remove_tilt, workers=workers)
-            world = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
-                                    azimuth_bins=config.render_bins).elevation_deg[0]
-            world_n = body_profile(world, hd, n_bins=n)
-            p0, r0 = _harmonic_tilt(q, world_n)
-            att = fit_attitude(q, world, hd, p0, r0, restarts_deg=config.restarts_deg,
-                               prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
-            if abs(att.pitch_deg - prior_pitch_deg) > 1.0 or abs(att.roll_deg - prior_roll_deg) > 1.0:
-                # Re-level the query with the estimated attitude, then redo the finest levels.
-                ql = relevel(q, att.pitch_deg, att.roll_deg, prior_pitch_deg=prior_pitch_deg,
-                             prior_roll_deg=prior_roll_deg)
-                if np.isfinite(ql).sum() >= 20:
-                    x, y, s, hd, local = _refine(dem, ql, x, y, step0 / 4, config.levels - 1,
-                                                 camera_height_m=camera_height_m, planet=planet,
-                                                 remove_tilt=config.match.remove_tilt,
-                                                 workers=workers)
-                    world = render_horizons(dem, [x], [y], camera_height_m=camera_height_m,
-                                            planet=planet, azimuth_bins=config.render_bins
-                                            ).elevation_deg[0]
-                    att = fit_attitude(q, world, att.yaw_deg, att.pitch_deg, att.roll_deg,
-                                       restarts_deg=(0.0,), prior_pitch_deg=prior_pitch_deg,
-                                       prior_roll_deg=prior_roll_deg)
+            x, y, s, local, att = _refine_candidate(
+                dem, q, cx, cy, ch, step0, config, camera_height_m=camera_height_m, planet=planet,
+                prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg, noise=noise)
             results.append(dict(x=x, y=y, score=s, heading=att.yaw_deg, att=att, local=local,
                                 db_score=cs))
         results.sort(key=lambda d: d["att"].rms_deg)
@@ -493,7 +550,8 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         psig = _position_sigma(best["local"], best["score"], int(obs.sum()), noise)
         att = best["att"]
         fx, fy, heading, pitch, roll = best["x"], best["y"], att.yaw_deg, att.pitch_deg, att.roll_deg
-        hsig, rms = att.yaw_sigma_deg, att.rms_deg
+        hsig, rms = att.yaw_sigma_deg, att.robust_rms_deg
+        tilt = math.hypot(pitch - prior_pitch_deg, roll - prior_roll_deg)
         cand_out = [{"x": d["x"], "y": d["y"], "heading_deg": d["heading"],
                      "score": d["att"].rms_deg ** 2} for d in results]
         cand_out += [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]}
@@ -505,9 +563,11 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         fx, fy, heading, pitch, roll = cx, cy, ch, prior_pitch_deg, prior_roll_deg
         psig = float(db.spacing_m) / math.sqrt(6)
         hsig, rms = 360.0 / n, math.sqrt(cs)
+        tilt = 0.0
         cand_out = [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]} for c in cands]
-    feat = confidence_features(best_s, other, rms, noise, relief, float(obs.mean()))
-    conf = confidence_from_features(feat, model, "locate")
+    feat = confidence_features(best_s, other, rms, noise, relief, float(obs.mean()), psig, tilt)
+    # Without a database the answer is judged at scenario 2's tolerance (1 m), not 5 m.
+    conf = confidence_from_features(feat, model, "locate" if db is not None else "locate_prior")
     crs, lon, lat = _crs_and_lonlat(crs_wkt, fx, fy)
     fix = Fix(float(fx), float(fy), crs, lon, lat, float(heading) % 360.0, float(pitch),
               float(roll), float(psig), float(hsig), conf, float(best_s), tuple(cand_out), feat)
@@ -540,17 +600,20 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     k = int(np.flatnonzero(inwin)[np.argmin(s[inwin])])
     h0 = shifts[k]
     p0, r0 = _harmonic_tilt(q, body_profile(world, h0, n_bins=n))
-    att = fit_attitude(q, world, h0, p0, r0, prior_pitch_deg=prior_pitch_deg,
-                       prior_roll_deg=prior_roll_deg, yaw_window_deg=window_deg,
-                       restarts_deg=(-2.5, 0.0, 2.5))
+    att = fit_attitude(q, world, h0, prior_pitch_deg + p0, prior_roll_deg + r0,
+                       prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg,
+                       yaw_window_deg=window_deg, restarts_deg=(-2.5, 0.0, 2.5),
+                       accept_deg=2.0 * max(noise, 0.05))
     # Landscape inside the window: best vs best shift more than 3 deg away.
     far = inwin & (np.abs((shifts - att.yaw_deg + 180.0) % 360.0 - 180.0) > 3.0)
     other = float(s[far].min()) if far.any() else np.inf
-    feat = confidence_features(float(s[inwin].min()), other, att.rms_deg, noise,
-                               float(np.nanstd(q)), float(np.isfinite(q).mean()))
+    feat = confidence_features(float(s[inwin].min()), other, att.robust_rms_deg, noise,
+                               float(np.nanstd(q)), float(np.isfinite(q).mean()),
+                               att.yaw_sigma_deg,
+                               math.hypot(att.pitch_deg - prior_pitch_deg, att.roll_deg - prior_roll_deg))
     conf = confidence_from_features(feat, model, "heading")
     return HeadingFix(att.yaw_deg % 360.0, att.yaw_sigma_deg, att.pitch_deg, att.roll_deg, conf,
-                      att.rms_deg ** 2, float(x), float(y))
+                      att.rms_deg ** 2, float(x), float(y), feat)
 
 
 # --- simulation helpers (tests, benchmarks, calibration) ---------------------------------------------
