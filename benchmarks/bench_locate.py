@@ -1,14 +1,22 @@
-"""Full-database search: wall time and peak RSS of the locate process (target <= 10 s, 256 MB).
+"""Full-database search: wall time and peak RSS of the locate process (targets <= 10 s, 256 MB).
 
-With the real store (``/work/data/sierra_7km_5m.zarr`` and ``skyfix.database``) this runs
-``skyfix locate --profile P --db DB`` under ``/usr/bin/time -v`` (database level only, no DEM
-refinement unless ``--dem``). Without it, a stand-in store of the same size (1401 x 1401
-positions x 360 bins, int16, streamed in 128 x 128 blocks made by tiling 4096 profiles rendered
-from sierra_nevada_30m) is searched by ``match_database`` in a subprocess: it measures the
-matcher's compute and memory but not zarr decompression.
+On the real store (default ``/work/data/sierra_7km_5m.zarr``, 1401 x 1401 positions x 360 bins):
 
-    PYTHONPATH=src python benchmarks/bench_locate.py [--db PATH] [--dem PATH] [--n 1401] [--preset fast]
-Timings are noisy on a shared 2-core machine.
+1. a body-frame query profile is rendered from the store's DEM at a known off-grid position
+   (``skyfix.pose.synthetic_profile``: heading, noise, view width, tilt as given), or read from
+   ``--profile P.json`` (then ``--truth-x/--truth-y`` tell where it was taken, if known);
+2. ``skyfix locate --profile P --db DB`` runs ``--repeat`` times under ``/usr/bin/time -v``
+   (database level only: no ``--dem`` refinement): wall time and peak RSS of the whole process,
+   imports included, and whether the fix is the grid position nearest the truth;
+3. the matcher alone (``match_database``) runs as many times in its own process for the breakdown:
+   waiting for blocks (read/decompress not hidden by the reader thread), coarse pass, exact pass,
+   and CPU time of the scoring thread and of the reader thread.
+
+Medians are printed with the machine's load (``os.getloadavg``): timings on a shared 2-core
+machine are noisy; CPU seconds are steadier than wall seconds there.
+
+    PYTHONPATH=src python benchmarks/bench_locate.py [--db DB] [--repeat 3] [--preset fast]
+        [--heading 123] [--noise 0.2] [--coverage 360] [--pitch 0 --roll 0] [--profile P.json]
 """
 
 from __future__ import annotations
@@ -17,124 +25,138 @@ import argparse
 import json
 import os
 import re
+import statistics
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DEM = ROOT.parent / "shared" / "data" / "dem" / "sierra_nevada_30m.tif"
 
-CHILD = r"""
+MATCH_CHILD = r"""
 import json, resource, sys, time
 t_start = time.perf_counter()
-import numpy as np
-from skyfix.match import Block, MatchConfig, PRESETS, match_database
-n, preset = int(sys.argv[1]), sys.argv[2]
-pool = np.load(sys.argv[3])
-query = np.load(sys.argv[4])
-truth = int(sys.argv[5])
-
-class Tiled:
-    shape = (n, n); azimuth_bins = 360; spacing_m = 5.0; scale_deg = 0.01; missing = -32768
-    x_coords = np.arange(n) * 5.0; y_coords = (n - 1 - np.arange(n)) * 5.0
-    def iter_blocks(self, b=128):
-        k = 0
-        for r0 in range(0, n, b):
-            for c0 in range(0, n, b):
-                r1, c1 = min(n, r0 + b), min(n, c0 + b)
-                m = (r1 - r0) * (c1 - c0)
-                idx = (np.arange(m) * 7919 + k) % (pool.shape[0] - 1)  # the truth's profile only once
-                k += m
-                el = pool[idx]
-                rr, cc = np.divmod(np.arange(m), c1 - c0)
-                rr += r0; cc += c0
-                hit = (rr * n + cc) == truth
-                if hit.any():
-                    el = el.copy(); el[hit] = pool[-1]
-                yield Block(r0, c0, r1 - r0, c1 - c0, self.x_coords[cc], self.y_coords[rr], el)
-
-t0 = time.perf_counter()
-res = match_database(Tiled(), query, PRESETS[preset])
-wall = time.perf_counter() - t0
+from skyfix.database import open_database
+from skyfix.formats import read_profile_json
+from skyfix.match import PRESETS, match_database
+db = open_database(sys.argv[1])
+prof = read_profile_json(sys.argv[2])
+t0 = time.perf_counter(); c0 = time.process_time()
+res = match_database(db, prof.elevation_deg, PRESETS[sys.argv[3]])
 c = res.candidates[0]
-tr, tc = divmod(truth, n)
-print(json.dumps({"search_s": wall, "process_s": time.perf_counter() - t_start,
+print(json.dumps({"search_s": time.perf_counter() - t0, "search_cpu_s": time.process_time() - c0,
+                  "process_s": time.perf_counter() - t_start,
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "positions": res.n_positions, "scored_exact": res.n_scored_exact,
-                  "timing": res.timing, "top1_is_truth": (c.row, c.col) == (tr, tc),
-                  "heading_deg": c.heading_deg}))
+                  "timing": res.timing, "row": c.row, "col": c.col, "heading_deg": c.heading_deg}))
 """
 
 
-def stand_in(n, preset):
-    import numpy as np
+def _env():
+    return dict(os.environ, PYTHONPATH=str(ROOT / "src"))
 
+
+def make_profile(db_path, out, x, y, args):
+    from skyfix.database import open_database
     from skyfix.dem import load_dem
-    from skyfix.horizon import render_horizons
+    from skyfix.formats import write_profile_json
+    from skyfix.pose import synthetic_profile
 
-    dem = load_dem(DEM)
-    x0, y0, x1, y1 = dem.bounds
-    rng = np.random.default_rng(0)
-    xs = rng.uniform(x0 + 3000, x1 - 3000, 4096)
-    ys = rng.uniform(y0 + 3000, y1 - 3000, 4096)
-    el = render_horizons(dem, xs, ys).elevation_deg
-    pool = np.round(np.nan_to_num(el) / 0.01).astype(np.int16)
-    q = pool[-1] * 0.01
-    q = np.roll(q, -123) + rng.normal(0, 0.2, 360)  # heading 123 deg, noise
-    q[200:300] = np.nan
-    truth = (n // 2) * n + n // 3
-    with tempfile.TemporaryDirectory() as d:
-        np.save(f"{d}/pool.npy", pool)
-        np.save(f"{d}/q.npy", q)
-        env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
-        out = subprocess.run([sys.executable, "-c", CHILD, str(n), preset, f"{d}/pool.npy",
-                              f"{d}/q.npy", str(truth)], capture_output=True, text=True, env=env)
-    if out.returncode:
-        raise SystemExit(out.stderr)
-    r = json.loads(out.stdout.strip().splitlines()[-1])
-    print(f"stand-in store {n} x {n} = {r['positions']:,} positions x 360 bins (int16 blocks, "
-          f"no zarr), preset {preset}")
-    print(f"  search wall {r['search_s']:.2f} s, whole process {r['process_s']:.2f} s, "
-          f"peak RSS {r['peak_rss_mb']:.0f} MB")
-    t = r["timing"]
-    print(f"  where: block supply {t['read_s']:.2f} s, coarse pass {t['coarse_s']:.2f} s, "
-          f"exact pass {t['exact_s']:.2f} s on {r['scored_exact']:,} positions, nms {t['nms_s']:.2f} s")
-    print(f"  top-1 is the true position: {r['top1_is_truth']} (heading {r['heading_deg']:.2f}, truth 123)")
+    db = open_database(db_path)
+    dem = load_dem(db.attrs["dem"]["source"])
+    prof = synthetic_profile(dem, x, y, args.heading, args.pitch, args.roll,
+                             camera_height_m=db.camera_height_m, n_bins=db.azimuth_bins,
+                             noise_deg=args.noise, coverage_deg=args.coverage, rng=args.seed)
+    write_profile_json(out, prof)
 
 
-def real(db, dem, profile, preset):
+def run_locate(db, profile, preset, fix_path):
     cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "skyfix.cli.main", "locate", "--profile",
-           profile, "--db", db, "--preset", preset] + (["--dem", dem] if dem else [])
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
-    out = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    wall = re.search(r"Elapsed \(wall clock\) time.*: (.*)", out.stderr)
-    rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", out.stderr)
-    print(out.stdout[-2000:])
-    print(f"skyfix locate --db {db}: exit {out.returncode}, wall {wall and wall.group(1)}, "
-          f"peak RSS {int(rss.group(1)) / 1024 if rss else float('nan'):.0f} MB")
+           str(profile), "--db", str(db), "--preset", preset, "-o", str(fix_path), "--overwrite"]
+    out = subprocess.run(cmd, capture_output=True, text=True, env=_env())
     if out.returncode:
-        print(out.stderr[-3000:])
+        raise SystemExit(f"locate failed ({out.returncode}):\n{out.stderr[-3000:]}")
+    m = re.search(r"Elapsed \(wall clock\) time.*: (?:(\d+):)?(\d+):([\d.]+)", out.stderr)
+    wall = int(m.group(1) or 0) * 3600 + int(m.group(2)) * 60 + float(m.group(3))
+    rss = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", out.stderr).group(1)) / 1024
+    cpu = sum(float(v) for v in re.findall(r"(?:User|System) time \(seconds\): ([\d.]+)", out.stderr))
+    return wall, rss, cpu, json.loads(Path(fix_path).read_text())
+
+
+def run_match(db, profile, preset):
+    out = subprocess.run([sys.executable, "-c", MATCH_CHILD, str(db), str(profile), preset],
+                         capture_output=True, text=True, env=_env())
+    if out.returncode:
+        raise SystemExit(f"matcher failed:\n{out.stderr[-3000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--db", default="/work/data/sierra_7km_5m.zarr")
-    ap.add_argument("--dem")
-    ap.add_argument("--profile", help="body-frame profile JSON for the real store")
-    ap.add_argument("--n", type=int, default=1401)
+    ap.add_argument("--profile", help="body-frame profile JSON (default: rendered at --truth-x/y)")
+    ap.add_argument("--truth-x", type=float, help="[m] (default: near the centre, off-grid)")
+    ap.add_argument("--truth-y", type=float)
+    ap.add_argument("--heading", type=float, default=123.0, help="[deg]")
+    ap.add_argument("--pitch", type=float, default=0.0, help="[deg]")
+    ap.add_argument("--roll", type=float, default=0.0, help="[deg]")
+    ap.add_argument("--noise", type=float, default=0.2, help="[deg] per bin")
+    ap.add_argument("--coverage", type=float, default=360.0, help="[deg] view width")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--preset", default="fast")
     args = ap.parse_args()
-    try:
-        import skyfix.database  # noqa: F401
-        have_db = Path(args.db).exists() and args.profile
-    except ImportError:
-        have_db = False
-    if have_db:
-        real(args.db, args.dem, args.profile, args.preset)
+
+    from skyfix.database import open_database
+
+    db = open_database(args.db)  # refuses an incomplete store
+    ny, nx = db.shape
+    if args.truth_x is None:
+        tx, ty = db.xy_of(ny // 2 + 37, nx // 3)
+        tx, ty = float(tx) + 1.7, float(ty) - 2.2  # off-grid
     else:
-        print(f"(no database module/store/--profile: using the stand-in store)")
-        stand_in(args.n, args.preset)
+        tx, ty = args.truth_x, args.truth_y
+    tr, tc = (int(v) for v in db.index_of(tx, ty)) if tx is not None else (None, None)
+    print(f"store {args.db}: {nx} x {ny} = {nx * ny:,} positions x {db.azimuth_bins} bins, "
+          f"{db.n_blocks} blocks; preset {args.preset}")
+    with tempfile.TemporaryDirectory() as d:
+        prof = Path(args.profile) if args.profile else Path(d) / "query.json"
+        if not args.profile:
+            make_profile(args.db, prof, tx, ty, args)
+            print(f"query rendered at ({tx:.1f}, {ty:.1f}) [nearest grid row {tr}, col {tc}], "
+                  f"heading {args.heading}, pitch {args.pitch}, roll {args.roll}, noise "
+                  f"{args.noise} deg, view {args.coverage} deg")
+        loc, mat, loads = [], [], []
+        for _ in range(args.repeat):
+            loads.append(os.getloadavg()[0])
+            loc.append(run_locate(args.db, prof, args.preset, Path(d) / "fix.json"))
+            mat.append(run_match(args.db, prof, args.preset))
+    med = statistics.median
+    print(f"load average (1 min) during the runs: {', '.join(f'{v:.1f}' for v in loads)} on "
+          f"{os.cpu_count()} cores")
+    walls = [w for w, _, _, _ in loc]
+    print(f"skyfix locate (whole process, {args.repeat} runs): wall median {med(walls):.2f} s "
+          f"(runs {', '.join(f'{w:.2f}' for w in walls)}), CPU median "
+          f"{med(c for _, _, c, _ in loc):.2f} s, peak RSS max {max(r for _, r, _, _ in loc):.0f} MB")
+    fix = loc[-1][3]
+    if tr is not None:
+        fr, fc = (int(v) for v in db.index_of(fix["x"], fix["y"]))
+        err = ((fix["x"] - tx) ** 2 + (fix["y"] - ty) ** 2) ** 0.5
+        print(f"  fix ({fix['x']:.1f}, {fix['y']:.1f}) heading {fix['heading_deg']:.2f}: "
+              f"{err:.1f} m from the truth; nearest grid position to the truth: {(fr, fc) == (tr, tc)}")
+    t = {k: med(m["timing"][k] for m in mat) for k in mat[0]["timing"]}
+    print(f"matcher alone (medians of {args.repeat}): search wall {med(m['search_s'] for m in mat):.2f} s, "
+          f"CPU {med(m['search_cpu_s'] for m in mat):.2f} s; process {med(m['process_s'] for m in mat):.2f} s, "
+          f"peak RSS {max(m['peak_rss_mb'] for m in mat):.0f} MB")
+    print(f"  waiting for blocks (read/decompress not overlapped) {t['read_s']:.2f} s "
+          f"[reader thread CPU {t['reader_cpu_s']:.2f} s], coarse pass {t['coarse_s']:.2f} s, "
+          f"exact pass {t['exact_s']:.2f} s on {mat[0]['scored_exact']:,} of "
+          f"{mat[0]['positions']:,} positions, nms {t['nms_s']:.2f} s; scoring thread CPU "
+          f"{t['main_cpu_s']:.2f} s")
+    m = mat[-1]
+    if tr is not None:
+        print(f"  top candidate is the truth's grid position: {(m['row'], m['col']) == (tr, tc)} "
+              f"(row {m['row']}, col {m['col']}; heading {m['heading_deg']:.2f}, truth {args.heading})")
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ World/body convention: ``world[az] = body[az - H]``, so query bin ``j`` (body) m
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -46,7 +47,8 @@ class MatchConfig:
     top_k : candidates returned, in distinct basins
     nms_radius_m : [m] two candidates are at least this far apart
     slice_rows : positions processed at once (memory ~ slice_rows * bins * 40 bytes)
-    workers : threads for scipy.fft
+    workers : threads (scipy.fft, BLAS; one goes to the block reader when prefetching)
+    prefetch : read and decompress the next blocks in a thread while scoring
     min_observed : refuse queries with fewer observed bins than this
     """
 
@@ -59,6 +61,7 @@ class MatchConfig:
     slice_rows: int = 2048
     workers: int = 2
     min_observed: int = 20
+    prefetch: bool = True
 
 
 PRESETS = {
@@ -85,6 +88,7 @@ class Query:
     g_inv: np.ndarray
     k_p: np.ndarray  # (n_kernels, n//2+1) conj spectra correlated with p: [m q, m U_0, m U_1, ...]
     k_p2: np.ndarray | None  # conj spectrum of m, correlated with p^2 (None when full)
+    kernels: np.ndarray | None = None  # float64 (n_kernels, n) the same kernels in the bin domain
 
 
 def _basis(n: int, remove_tilt: bool) -> np.ndarray:
@@ -130,7 +134,81 @@ def prepare_query(elevation_deg, remove_tilt: bool = True, min_observed: int = 2
     k_p = np.conj(sf.rfft(np.stack(kernels), axis=1)).astype(np.complex64)
     k_p2 = None if full else np.conj(sf.rfft(m)).astype(np.complex64)
     return Query(n, np.where(mask, q, np.nan), mask, m_obs, full, float(np.sum(qz * qz)),
-                 uw.T @ (m * qz), g_inv, k_p, k_p2)
+                 uw.T @ (m * qz), g_inv, k_p, k_p2, np.stack(kernels))
+
+
+@dataclass
+class DenseQuery:
+    """A query as circulant matrices: every shift's correlations in one matrix product.
+
+    k_lin : float32 (n, n_kernels * n), column ``i * n + s`` correlates kernel i at shift s
+    k_sq : float32 (n, n) circulant of the mask, applied to p^2 (None when every bin is observed)
+    """
+
+    n: int
+    m_obs: int
+    sq: float
+    u_q: np.ndarray
+    k_lin: np.ndarray
+    k_sq: np.ndarray | None
+
+
+def dense_query(query: Query) -> DenseQuery:
+    """Circulant form of a prepared query for :func:`score_dense` (cheap for small n, e.g. 90)."""
+    n = query.n
+    # corr(k, p)(s) = sum_l p_l k_{l-s}: column s of the circulant holds k rolled by s.
+    idx = (np.arange(n)[:, None] - np.arange(n)[None, :]) % n
+    kern = query.kernels
+    k_lin = np.ascontiguousarray(kern[:, idx].transpose(1, 0, 2).reshape(n, -1), np.float32)
+    k_sq = None if query.full else np.ascontiguousarray(query.mask.astype(np.float32)[idx])
+    return DenseQuery(n, query.m_obs, query.sq, np.asarray(query.u_q, np.float32), k_lin, k_sq)
+
+
+def score_dense(p: np.ndarray, dq: DenseQuery, all_shifts: bool = False):
+    """As :func:`score_profiles` (same scores, same return values) by matrix products.
+
+    For short profiles (the coarse pass, n = 90) BLAS beats small FFTs by an order of magnitude:
+    ``N x n x (n_kernels + 1) n`` multiply-adds, streamed at full sgemm speed.
+    p : float32 (N, n) [deg]
+    """
+    n = dq.n
+    p = np.asarray(p, np.float32)
+    if p.ndim != 2 or p.shape[1] != n:
+        raise ParameterError(f"profiles have shape {p.shape}, expected (N, {n})")
+    p = p - p.mean(axis=1, keepdims=True)
+    corr = (p @ dq.k_lin).reshape(p.shape[0], -1, n)
+    p *= p
+    if dq.k_sq is None:
+        s = np.sum(p, axis=1, keepdims=True) + np.zeros((1, n), np.float32)
+    else:
+        s = p @ dq.k_sq
+    del p
+    return _finish_scores(s, corr, dq.sq, dq.u_q, dq.m_obs, all_shifts)
+
+
+def _finish_scores(s, corr, sq, u_q, m_obs, all_shifts):
+    n = s.shape[1]
+    s += np.float32(sq)
+    s -= 2.0 * corr[:, 0]
+    for i in range(1, corr.shape[1]):
+        d = corr[:, i]
+        d -= np.float32(u_q[i - 1])
+        d *= d
+        s -= d
+    np.maximum(s, 0.0, out=s)
+    s /= m_obs
+    if all_shifts:
+        return s
+    k = np.argmin(s, axis=1)
+    rows = np.arange(s.shape[0])
+    s0 = s[rows, k]
+    sm = s[rows, (k - 1) % n]
+    sp = s[rows, (k + 1) % n]
+    den = sm - 2 * s0 + sp
+    off = np.where(den > 1e-12, 0.5 * (sm - sp) / np.where(den > 1e-12, den, 1.0), 0.0)
+    off = np.clip(off, -0.5, 0.5)
+    best = s0 - 0.25 * (sm - sp) * off
+    return np.maximum(best, 0.0).astype(np.float32), ((k + off) % n).astype(np.float32)
 
 
 def score_profiles(p: np.ndarray, query: Query, workers: int = 2, all_shifts: bool = False):
@@ -156,27 +234,7 @@ def score_profiles(p: np.ndarray, query: Query, workers: int = 2, all_shifts: bo
     else:
         s = sf.irfft(sf.rfft(p * p, axis=1, workers=workers) * query.k_p2[None], n=n, axis=1,
                      workers=workers)
-    s += np.float32(query.sq)
-    s -= 2.0 * corr[:, 0]
-    for i in range(1, corr.shape[1]):
-        d = corr[:, i]
-        d -= np.float32(query.u_q[i - 1])
-        d *= d
-        s -= d
-    np.maximum(s, 0.0, out=s)
-    s /= query.m_obs
-    if all_shifts:
-        return s
-    k = np.argmin(s, axis=1)
-    rows = np.arange(s.shape[0])
-    s0 = s[rows, k]
-    sm = s[rows, (k - 1) % n]
-    sp = s[rows, (k + 1) % n]
-    den = sm - 2 * s0 + sp
-    off = np.where(den > 1e-12, 0.5 * (sm - sp) / np.where(den > 1e-12, den, 1.0), 0.0)
-    off = np.clip(off, -0.5, 0.5)
-    best = s0 - 0.25 * (sm - sp) * off
-    return np.maximum(best, 0.0).astype(np.float32), ((k + off) % n).astype(np.float32)
+    return _finish_scores(s, corr, query.sq, query.u_q, query.m_obs, all_shifts)
 
 
 def brute_force_scores(p: np.ndarray, q: np.ndarray, remove_tilt: bool = True) -> np.ndarray:
@@ -356,12 +414,100 @@ def _to_float(raw: np.ndarray, scale: float, missing: int) -> np.ndarray:
     return np.where(np.isfinite(p), p, np.float32(0.0))
 
 
+def _coarse_profiles(raw: np.ndarray, f: int, scale: float, missing: int) -> np.ndarray:
+    """float32 (N, n / f) [deg]: groups of ``f`` bins averaged, straight from the int16 store."""
+    if raw.dtype == np.int16 and not (raw == missing).any():
+        # Strided adds into one float32 array: no full-resolution float copy of the block.
+        pc = raw[:, 0::f].astype(np.float32)
+        for k in range(1, f):
+            pc += raw[:, k::f]
+        pc *= np.float32(scale / f)
+        return pc
+    p = _to_float(raw, scale, missing)
+    return p.reshape(p.shape[0], -1, f).mean(axis=2)
+
+
+def _prefetch(blocks, depth: int = 2):
+    """Yield ``blocks`` while a thread reads ahead: decompression (zstd, GIL released) overlaps
+    the scoring. Also yields the reader thread's CPU time [s] for each block."""
+    import queue
+    import threading
+    import time
+
+    box: queue.Queue = queue.Queue(depth)
+    stop = threading.Event()
+
+    def put(item):
+        while not stop.is_set():
+            try:
+                box.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                pass
+        return False
+
+    def run():
+        try:
+            it = iter(blocks)
+            while True:
+                t = time.thread_time()
+                try:
+                    b = next(it)
+                except StopIteration:
+                    break
+                if not put(("block", b, time.thread_time() - t)):
+                    return
+            put(("end", None, 0.0))
+        except BaseException as e:  # handed to the consumer, raised there
+            put(("error", e, 0.0))
+
+    th = threading.Thread(target=run, name="skyfix-block-reader", daemon=True)
+    th.start()
+    try:
+        while True:
+            kind, v, dt = box.get()
+            if kind == "end":
+                return
+            if kind == "error":
+                raise v
+            yield v, dt
+    finally:
+        stop.set()
+
+
+def _elevation_blocks(db):
+    """Blocks with only what the matcher needs.
+
+    For a complete ``skyfix.database`` store, the elevation chunks alone, read through the
+    documented layout (zarr array ``elevation`` in the store's folder): ``iter_blocks`` also decodes
+    ground height, ray length and edge bins, ~35 % of the read time for data the search does not
+    use. Other stores (and incomplete ones): their ``iter_blocks``.
+    """
+    grid = getattr(db, "grid", None)
+    path = getattr(db, "path", None)
+    if grid is None or path is None or not getattr(db, "is_complete", False):
+        yield from db.iter_blocks()
+        return
+    import zarr
+
+    arr = zarr.open_array(str(path / "elevation"), mode="r")
+    for br, bc in grid.blocks():
+        rs, cs = grid.block_slices(br, bc)
+        x, y = grid.block_xy(br, bc)
+        raw = np.asarray(arr[rs, cs]).reshape((rs.stop - rs.start) * (cs.stop - cs.start), -1)
+        yield Block(rs.start, cs.start, rs.stop - rs.start, cs.stop - cs.start, x, y, raw)
+
+
 def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_xy=None,
                    prior_radius_m=None) -> MatchResult:
     """Search a store (``iter_blocks()`` with int16 or float blocks) for a body-frame profile.
 
     query_deg : (n,) [deg] body-frame elevations, NaN where unobserved; n must equal the store's bins
     prior_xy, prior_radius_m : [m] restrict the search to a disc (positions outside are skipped)
+
+    The coarse pass scores every position at ``n / coarse_factor`` bins by matrix products
+    (:func:`score_dense`); the best ``keep_fraction`` of each slice is scored exactly by FFT
+    (:func:`score_profiles`). Blocks are read ahead in a thread (``config.prefetch``).
     """
     import time
 
@@ -374,15 +520,15 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
     if f < 1 or n % f:
         raise ParameterError(f"coarse_factor {f} must divide the {n} azimuth bins")
     query = prepare_query(q, config.remove_tilt, config.min_observed)
-    coarse_q = prepare_query(decimate_query(q, f), config.remove_tilt,
-                             max(4, config.min_observed // f)) if f > 1 else None
+    coarse_q = dense_query(prepare_query(decimate_query(q, f), config.remove_tilt,
+                                         max(4, config.min_observed // f))) if f > 1 else None
     ny, nx = (int(v) for v in db.shape)
     score_map = np.full((ny, nx), np.nan, np.float32)
     heading_map = np.full((ny, nx), np.nan, np.float32)
     coarse_map = np.full((ny, nx), np.nan, np.float32) if f > 1 else None
     scale = float(getattr(db, "scale_deg", 1.0))
     missing = int(getattr(db, "missing", MISSING_RAW))
-    t_read = t_coarse = t_exact = 0.0
+    t_read = t_reader = t_coarse = t_exact = 0.0
     n_pos = n_exact = 0
     pend: list = []
     pend_n = 0
@@ -391,75 +537,83 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
         nonlocal pend, pend_n
         if not pend:
             return 0
-        pp = np.concatenate([a for a, _, _ in pend])
+        raw_ = np.concatenate([a for a, _, _ in pend])
         r_ = np.concatenate([b for _, b, _ in pend])
         c_ = np.concatenate([c for _, _, c in pend])
         pend, pend_n = [], 0
-        es, sh = score_profiles(pp, query, config.workers)
+        es, sh = score_profiles(_to_float(raw_, scale, missing), query, config.workers)
         score_map[r_, c_] = es
         heading_map[r_, c_] = sh * (360.0 / n)
-        return pp.shape[0]
+        return raw_.shape[0]
 
-    t0 = time.perf_counter()
-    blocks = db.iter_blocks()
-    while True:
-        try:
-            blk = next(blocks)
-        except StopIteration:
-            break
-        t1 = time.perf_counter()
-        t_read += t1 - t0
-        bx, by = np.asarray(blk.x, float), np.asarray(blk.y, float)
-        sel = None
-        if prior_xy is not None and prior_radius_m is not None:
-            d2 = (bx - prior_xy[0]) ** 2 + (by - prior_xy[1]) ** 2
-            sel = np.flatnonzero(d2 <= prior_radius_m ** 2)
-            if sel.size == 0:
-                t0 = time.perf_counter()
-                continue
-        rr, cc = _grid_index(db, bx, by)
-        elev = blk.elevation
-        idx_all = np.arange(bx.size) if sel is None else sel
-        for s0 in range(0, idx_all.size, config.slice_rows):
-            idx = idx_all[s0:s0 + config.slice_rows]
-            ta = time.perf_counter()
-            raw = elev[s0:s0 + idx.size] if sel is None else elev[idx]
-            p = _to_float(np.asarray(raw), scale, missing)
-            n_pos += idx.size
-            if coarse_q is not None:
-                pc = p.reshape(p.shape[0], n // f, f).mean(axis=2)
-                cs, _ = score_profiles(pc, coarse_q, config.workers)
-                coarse_map[rr[idx], cc[idx]] = cs
-                keep = max(config.keep_min, int(math.ceil(config.keep_fraction * idx.size)))
-                if keep < idx.size:
-                    part = np.argpartition(cs, keep - 1)[:keep]
-                else:
-                    part = np.arange(idx.size)
-                tb = time.perf_counter()
-                t_coarse += tb - ta
-                # Survivors are few per slice: batch them, FFT calls cost ~100 us each.
-                pend.append((p[part], rr[idx[part]], cc[idx[part]]))
-                pend_n += part.size
-            else:
-                pend.append((p, rr[idx], cc[idx]))
-                pend_n += idx.size
-            if pend_n >= config.slice_rows:
-                tb = time.perf_counter()
-                n_exact += flush()
-                t_exact += time.perf_counter() - tb
+    blocks = _elevation_blocks(db)
+    blocks = _prefetch(blocks) if config.prefetch else ((b, 0.0) for b in blocks)
+    with _blas_threads(max(1, config.workers - 1) if config.prefetch else config.workers):
         t0 = time.perf_counter()
-    tb = time.perf_counter()
-    n_exact += flush()
-    t_exact += time.perf_counter() - tb
-    t_read += tb - t0
+        cpu0 = time.thread_time()
+        for blk, dt in blocks:
+            t1 = time.perf_counter()
+            t_read += t1 - t0
+            t_reader += dt
+            bx, by = np.asarray(blk.x, float), np.asarray(blk.y, float)
+            sel = None
+            if prior_xy is not None and prior_radius_m is not None:
+                d2 = (bx - prior_xy[0]) ** 2 + (by - prior_xy[1]) ** 2
+                sel = np.flatnonzero(d2 <= prior_radius_m ** 2)
+                if sel.size == 0:
+                    t0 = time.perf_counter()
+                    continue
+            rr, cc = _grid_index(db, bx, by)
+            elev = np.asarray(blk.elevation)
+            idx_all = np.arange(bx.size) if sel is None else sel
+            for s0 in range(0, idx_all.size, config.slice_rows):
+                idx = idx_all[s0:s0 + config.slice_rows]
+                ta = time.perf_counter()
+                raw = elev[s0:s0 + idx.size] if sel is None else elev[idx]
+                n_pos += idx.size
+                if coarse_q is not None:
+                    cs, _ = score_dense(_coarse_profiles(raw, f, scale, missing), coarse_q)
+                    coarse_map[rr[idx], cc[idx]] = cs
+                    keep = max(config.keep_min, int(math.ceil(config.keep_fraction * idx.size)))
+                    part = np.argpartition(cs, keep - 1)[:keep] if keep < idx.size else \
+                        np.arange(idx.size)
+                    t_coarse += time.perf_counter() - ta
+                    # Survivors are few per slice: batch them, FFT calls cost ~100 us each.
+                    pend.append((raw[part], rr[idx[part]], cc[idx[part]]))
+                    pend_n += part.size
+                else:
+                    pend.append((raw, rr[idx], cc[idx]))
+                    pend_n += idx.size
+                if pend_n >= config.slice_rows:
+                    tb = time.perf_counter()
+                    n_exact += flush()
+                    t_exact += time.perf_counter() - tb
+            t0 = time.perf_counter()
+        tb = time.perf_counter()
+        t_read += tb - t0
+        n_exact += flush()
+        t_exact += time.perf_counter() - tb
+        cpu_main = time.thread_time() - cpu0  # BLAS/FFT helper threads not included
     if n_pos == 0:
         raise DatabaseError("no database position lies inside the prior area: check --prior-x/"
                             "--prior-y/--prior-radius-m against the database extent")
     tn = time.perf_counter()
     cands = _nms(score_map, heading_map, db, config.top_k, config.nms_radius_m)
-    timing = {"read_s": t_read, "coarse_s": t_coarse, "exact_s": t_exact,
-              "nms_s": time.perf_counter() - tn}
+    timing = {"read_s": t_read, "reader_cpu_s": t_reader, "main_cpu_s": cpu_main,
+              "coarse_s": t_coarse, "exact_s": t_exact, "nms_s": time.perf_counter() - tn}
     return MatchResult(cands, score_map, heading_map, coarse_map, n_pos, n_exact, timing)
+
+
+@contextmanager
+def _blas_threads(n: int):
+    """Limit BLAS threads (the reader thread takes a core; oversubscription costs more than it gives)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # optional: without it BLAS uses its default
+        yield
+        return
+    with threadpool_limits(limits=n, user_api="blas"):
+        yield
 
 
 def _nms(score_map, heading_map, db, k: int, radius_m: float) -> list:
