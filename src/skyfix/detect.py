@@ -65,8 +65,13 @@ class DpOptions:
         edge-ness, height in the image, gradient difference between neighbours)
     w_region : weight of the sky-likeness of the pixels above the skyline, per pixel of height
         (summed over the column, so it is in units of "rows")
-    region : ``"model"``: the region term is the learned sky classifier's log-odds
-        (:mod:`skyfix.skymodel`); ``"texture"``: a hand-set texture threshold (no model needed)
+    region : ``"both"`` (default): the hand-set texture term plus ``w_model`` times the learned
+        sky classifier's log-odds (:mod:`skyfix.skymodel`); ``"model"``: the classifier alone;
+        ``"texture"``: the texture term alone (no model needed). Leave-one-image-out on the dev
+        set, ``both`` beat each alone; the classifier alone also fails on synthetic skies whose
+        colour equals the terrain's (it learnt Mars's colours), which the texture term keeps
+        honest. Grey images use ``texture`` (the classifier needs colour)
+    w_model : weight of the classifier's log-odds [nats] in the ``both`` region term
     model_pixels : the classifier runs on a copy downscaled to at most this many pixels [px]
     llr_clip : the classifier's per-pixel log-odds are clipped to +-``llr_clip`` [nats], so a
         few confident mistakes cannot dominate a column
@@ -76,6 +81,9 @@ class DpOptions:
     switch_cost : cost of switching between skyline and no-skyline between columns
     vertical_cost : extra cost per pixel of a move within a column
     jump_cost : cost of a one-row change between columns
+    min_sky_rows : a skyline needs at least this many valid working-scale rows above it in its
+        column: a sliver under the mosaic's top edge is too thin to tell sky from hazy terrain,
+        and calling it sky is the commonest false skyline [working px]
     refine_band : half-height of the full-resolution refinement band, in working-scale rows
     no_data_black : treat (0, 0, 0) pixels as no data
     """
@@ -86,14 +94,16 @@ class DpOptions:
     w_height: float = 0.1
     w_diff: float = 0.05
     w_region: float = 0.08
-    region: str = "model"
+    region: str = "both"
     model_pixels: int = 250_000
-    llr_clip: float = 3.0
+    llr_clip: float = 1.5
     texture_ratio: float = 0.35
+    w_model: float = 0.25
     none_cost: float = 0.2
     switch_cost: float = 8.0
     vertical_cost: float = 0.15
     jump_cost: float = 0.05
+    min_sky_rows: int = 3
     refine_band: float = 1.5
     no_data_black: bool = True
 
@@ -442,6 +452,9 @@ def _dp_costs(gray_s, valid_s, opt: DpOptions, d=None):
     ok = valid_s.copy()
     ok[1:] &= valid_s[:-1]
     ok[0] = False
+    if opt.min_sky_rows > 1:
+        n_above = np.cumsum(valid_s, axis=0) - valid_s  # valid rows above r
+        ok &= n_above >= opt.min_sky_rows
     enter = pix + opt.w_region * P[:-1]
     enter = np.where(ok, enter, _BIG)
     vert = np.where(ok, pix + opt.vertical_cost, _BIG)
@@ -561,12 +574,19 @@ def _detect_dp(img, valid, opt: DpOptions, model=None):
     gray_s = _downscale(gray, f)
     valid_s = _downscale_valid(valid, f)
     d = None
-    if opt.region == "model":
+    region = opt.region
+    if img.ndim == 2 and region == "both":
+        # the classifier was trained on colour mosaics; without chroma its input is off the
+        # training distribution (measured: it then calls a smooth grey sky terrain)
+        region = "texture"
+    if region in ("model", "both"):
         lo, _, fm = sky_log_odds(img, valid, gray, _resolve_model(model), opt.model_pixels)
         # d > 0: terrain more likely; the region cost of a skyline at r is the sum of d above r
         d = -np.clip(_resample_to(lo, fm, f, gray_s.shape), -opt.llr_clip, opt.llr_clip)
         d = d.astype(np.float64)
-    elif opt.region != "texture":
+        if region == "both":
+            d = opt.w_model * d + _dp_costs(gray_s, valid_s, opt)[4]
+    elif region != "texture":
         raise ParameterError(f"unknown region term {opt.region!r}: choose 'model' or 'texture'")
     enter, vert, G, none, d = _dp_costs(gray_s, valid_s, opt, d)
     top, bottom = _dp_solve(enter, vert, G, none, 1, opt.jump_cost, opt.w_diff, opt.switch_cost)
