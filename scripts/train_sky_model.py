@@ -5,7 +5,13 @@ Reads every labelled mosaic of the dev set (``NAME.png`` + ``NAME_label.png``, s
 :func:`skyfix.skymodel.fit_sky_model` on all of them and writes the tree arrays (.npz, no pickle).
 
     PYTHONPATH=src python scripts/train_sky_model.py \\
-        --data ../shared/data/marsscapes-dev --out src/skyfix/models/sky_hgb.npz [--overwrite]
+        --data ../shared/data/marsscapes-dev --out src/skyfix/models/sky_hgb.npz [--overwrite] \\
+        [--sim FOLDER ...]
+
+``--sim`` adds simulated acquisitions (``skyfix simulate-set`` output), labelled exactly from the
+simulator's visible skylines, so that the classifier also knows skies the real dev set lacks
+(Earth's blue, clouds, glare). The shipped model was trained with the sets that
+``scripts/make_sky_sims.sh`` renders (seeds 901-905, never used for evaluation).
 
 The held-out (leave-one-image-out) accuracy of this recipe is printed by
 ``benchmarks/bench_detect.py --cv``.
@@ -39,6 +45,38 @@ def read_labelled(folder):
             cv2.cvtColor(lab, cv2.COLOR_BGR2RGB))
 
 
+def read_simulated(folder, max_frames):
+    """Yield (name, RGB image, sky mask) for simulated frames under ``folder``.
+
+    Pixel rows above a column's visible skyline row are sky, the rest terrain; columns without a
+    skyline (all terrain or all sky: the truth file does not say which) are blanked to no-data.
+    At most ``max_frames`` frames, spread evenly, so the real dev set keeps its weight.
+    """
+    import cv2
+
+    from skyfix.formats import read_skyline_json
+
+    frames = []
+    for png in sorted(Path(folder).rglob("*.png")):
+        vis = png.with_name(png.stem + ".visible.skyline.json")
+        truth = vis if vis.exists() else png.with_name(png.stem + ".skyline.json")
+        if truth.exists():
+            frames.append((png, truth))
+    if len(frames) > max_frames:
+        frames = [frames[i] for i in np.linspace(0, len(frames) - 1, max_frames).round().astype(int)]
+    for png, truth in frames:
+        sky = read_skyline_json(truth)
+        if not np.isfinite(sky.rows).any():
+            continue
+        img = cv2.cvtColor(cv2.imread(str(png), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+        h = img.shape[0]
+        rows = np.arange(h)[:, None]
+        # pixel centre v lies above the skyline (sky) when v < r
+        mask = rows < np.where(np.isfinite(sky.rows), sky.rows, -1)[None, :]
+        img[:, ~np.isfinite(sky.rows)] = 0
+        yield f"{png.parent.parent.name}/{png.parent.name}/{png.stem}", img, mask
+
+
 def main(argv=None):
     from skyfix.skymodel import fit_sky_model, training_pixels
 
@@ -47,13 +85,23 @@ def main(argv=None):
     ap.add_argument("--out", default=str(ROOT / "src" / "skyfix" / "models" / "sky_hgb.npz"))
     ap.add_argument("--overwrite", action="store_true")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--sim", action="append", default=[],
+                    help="folder of simulated acquisitions to add (repeatable)")
+    ap.add_argument("--sim-max-frames", type=int, default=24,
+                    help="at most this many simulated frames in all")
     args = ap.parse_args(argv)
     out = Path(args.out)
     if out.exists() and not args.overwrite:
         raise SystemExit(f"{out} exists: pass --overwrite to replace it")
     t0 = time.perf_counter()
     parts = []
-    for name, img, sky in read_labelled(args.data):
+    sims = []
+    for k, folder in enumerate(args.sim):
+        share = args.sim_max_frames // len(args.sim) + (k < args.sim_max_frames % len(args.sim))
+        sims.append(read_simulated(folder, share))
+    import itertools
+
+    for name, img, sky in itertools.chain(read_labelled(args.data), *sims):
         X, y = training_pixels(img, sky)
         parts.append((X, y))
         print(f"{name}: {len(y)} pixels, {100 * y.mean():.1f} % sky", file=sys.stderr)
