@@ -14,7 +14,10 @@ Two detectors share one exact dynamic-programming kernel (:func:`_dp_solve`, num
     ``w_diff | |grad|(r, c) - |grad|(r', c-1) |`` (the source study's four terms, on CLAHE'd,
     smoothed grey with Canny thresholds from Otsu), and entering a column at row ``r`` adds a
     region term: ``w_region`` times the sum, over the pixels above ``r``, of how unlike sky
-    they look (a texture likelihood ratio; the sky is smooth, terrain is not). Each column also
+    they look: a texture likelihood ratio (the sky is smooth, terrain is not) plus ``w_model``
+    times the log-odds of a small learned sky-vs-terrain classifier (:mod:`skyfix.skymodel`,
+    trained by ``scripts/train_sky_model.py`` on the dev mosaics; prefix sums make the cost of
+    every row O(1)). Each column also
     has an explicit *no-skyline* state whose cost is that of calling the whole column terrain (or
     the whole column sky) plus ``none_cost``; switching between it and the skyline costs
     ``switch_cost``. The exact optimum is found on the working copy, then each column is refined
