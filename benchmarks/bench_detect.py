@@ -5,7 +5,7 @@ both have a skyline, share within 3 px and 10 px, false-skyline and missed-skyli
 valid columns, and milliseconds per megapixel (wall time on this machine: noisy when shared).
 
     PYTHONPATH=src python benchmarks/bench_detect.py [--methods dp,bayes] [--data DIR]
-        [--only NAME,...] [--set KEY=VALUE ...] [--cv]
+        [--only NAME,...] [--set KEY=VALUE ...] [--cv] [--sim DIR]
 
 ``--cv`` adds a leave-one-image-out table for ``dp``: for each image, the sky classifier is
 retrained (same recipe as ``scripts/train_sky_model.py``) on the other labelled images and the
@@ -87,6 +87,17 @@ def dev_pairs(folder):
         yield name, _read_rgb(truth_path.with_name(name + ".png")), read_skyline_json(truth_path)
 
 
+def sim_pairs(set_dir):
+    """Every simulated frame under ``set_dir`` with its truth: the visible skyline (rocks
+    included) where the simulator wrote one, else the terrain skyline."""
+    for png in sorted(Path(set_dir).rglob("*.png")):
+        stem = png.with_suffix("")
+        vis, ter = Path(f"{stem}.visible.skyline.json"), Path(f"{stem}.skyline.json")
+        truth = vis if vis.exists() else ter
+        if truth.exists():
+            yield f"{png.parent.name}/{png.stem}", _read_rgb(png), read_skyline_json(truth)
+
+
 def loo_models(folder, names):
     """{name: sky model trained on every labelled image of ``folder`` except ``name``}."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
@@ -111,6 +122,7 @@ def main(argv=None):
                     help="override a detector option (dp only), e.g. --set w_region=0.1")
     ap.add_argument("--cv", action="store_true",
                     help="also a leave-one-image-out table (retrains the sky model per image)")
+    ap.add_argument("--sim", default="", help="folder of simulated sets (one sub-folder per set)")
     ap.add_argument("--no-all", action="store_true", help="skip the shipped-model tables")
     args = ap.parse_args(argv)
     options = {}
@@ -130,11 +142,13 @@ def main(argv=None):
     if args.cv:
         models = loo_models(folder, [p[0] for p in pairs])
         run_set(pairs, "dp", models=models, title="(leave-one-image-out sky model)", **options)
-    try:
-        from skyfix.simulate import simulate_set  # noqa: F401
-    except ImportError:
-        print("simulated sets (REF, CLUT, OCCL, COND): skipped, skyfix.simulate.simulate_set "
-              "is not on this branch yet")
+    if args.sim:
+        for set_dir in sorted(p for p in Path(args.sim).iterdir() if p.is_dir()):
+            run_set(list(sim_pairs(set_dir)), "dp", per_image=False, title=f"(simulated {set_dir.name})",
+                    **options)
+    else:
+        print("simulated sets: pass --sim DIR (DIR/REF, DIR/CLUT, ... written by "
+              "skyfix.simulate.simulate_set)")
 
 
 if __name__ == "__main__":
