@@ -76,8 +76,8 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
                   roll_deg=float(rng.uniform(-3, 3)))
     t0 = time.perf_counter()
     say("2/4 simulating a 360 deg navcam frame set, mast tilted 15 deg up, at a hidden position")
-    acq_dir = simulate_acquisition(dem, truth, out / "acquisition", camera="navcam", seed=seed, tilt_deg=15.0,
-                                   overwrite=True)
+    acq_dir = simulate_acquisition(dem, truth, out / "acquisition", camera="navcam", seed=seed,
+                                   tilt_deg=15.0, overwrite=True)
     timings["simulate_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -99,7 +99,8 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
                      fix_heading_deg=fix.heading_deg, fix_pitch_deg=fix.pitch_deg,
                      fix_roll_deg=fix.roll_deg, confidence=fix.confidence, score=fix.score)
     overlay = plot_skyline_overlay(out / "skyline_overlay.png", res, profile, dem,
-                                   EvalConfig(scenario=1))
+                                   EvalConfig(scenario=1), prior_pitch_deg=acq.prior_pitch_deg,
+                                   prior_roll_deg=acq.prior_roll_deg)
     summary = {
         "fix": fix.to_dict(),
         "truth": {"x": truth.x, "y": truth.y, "yaw_deg": truth.yaw_deg, "pitch_deg": truth.pitch_deg,

@@ -97,6 +97,7 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
         profile = acquisition_profile(acq, skylines=truth_skylines(acq) if cfg.skylines == "truth" else None)
         res.time_profile_s = time.perf_counter() - t0
         extra["profile"] = profile
+        extra["prior"] = (acq.prior_pitch_deg, acq.prior_roll_deg)
         t0 = time.perf_counter()
         if cfg.scenario == 3:
             off = HEADING_PRIOR_OFFSETS_M[case_index % len(HEADING_PRIOR_OFFSETS_M)]
@@ -210,8 +211,10 @@ def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command
     for res, extra, cdir in examples:
         if "profile" in extra:
             try:
+                pp, pr = extra["prior"]
                 figs.append(plot_skyline_overlay(out / f"overlay_{res.set}_{res.case}.png", res,
-                                                 extra["profile"], dem, cfg))
+                                                 extra["profile"], dem, cfg, prior_pitch_deg=pp,
+                                                 prior_roll_deg=pr))
             except SkyfixError as e:
                 log.warning("no overlay for %s: %s", res.case, e)
     print(text)
@@ -226,8 +229,10 @@ def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command
                              figures=figs, command=command)
 
 
-def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig) -> Path:
-    """Measured body-frame profile vs the DEM's skyline rendered at the truth and at the fix."""
+def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig, *,
+                         prior_pitch_deg: float = 0.0, prior_roll_deg: float = 0.0) -> Path:
+    """Measured body-frame profile (levelled with the attitude prior [deg]) vs the DEM's skyline
+    rendered at the truth and at the fix and seen through the same levelling."""
     from .horizon import render_horizons
     from .pose import body_profile
     from .report import _pyplot, _save
@@ -245,7 +250,8 @@ def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig) -
             continue
         world = render_horizons(dem, [x], [y], camera_height_m=cfg.camera_height_m, planet=cfg.planet,
                                 azimuth_bins=4 * n).elevation_deg[0]
-        body = body_profile(world, yaw, np.nan_to_num(pitch), np.nan_to_num(roll), n_bins=n)
+        body = body_profile(world, yaw, np.nan_to_num(pitch), np.nan_to_num(roll), n_bins=n,
+                            prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
         ax.plot(az, body, label=label, **style)
     ax.plot(az, profile.elevation_deg, ".", ms=2, color="k", label="measured (detected)")
     ax.set_xlim(0, 360)
