@@ -450,7 +450,10 @@ def _dp_costs(gray_s, valid_s, opt: DpOptions, d=None):
     if d is None:
         # sky-likeness from texture of the un-equalised grey (CLAHE would lift the sky's noise)
         tex = _texture(cv2.GaussianBlur(gray_s, (3, 3), 0.8), valid_s, 3).astype(np.float64)
-        med = np.median(tex[valid_s]) if valid_s.any() else 1.0
+        tv = tex[valid_s] if valid_s.any() else np.ones(1)
+        # the median alone collapses to ~0 when over half the image is smooth (a big clean sky,
+        # smooth rendered terrain), and then nothing looks like sky: floor it by the textured part
+        med = max(float(np.median(tv)), 0.25 * float(np.percentile(tv, 90)))
         # log ratio to the sky threshold: < 0 looks like sky, > 0 like terrain; clipped so a few
         # wild pixels cannot dominate a column
         d = np.clip(np.log((tex + 0.05 * med + 1e-6) / (opt.texture_ratio * med + 1e-6)),

@@ -42,6 +42,7 @@ class EvalConfig:
     scenario : 1, 2 or 3; sets : robustness set names; cases : per set; seed : reproducibility
     area : (xmin, ymin, xmax, ymax) [m] where cases are drawn (default: the database's grid for
     scenario 1, the simulator's default area otherwise)
+    tilt_deg : [deg] mast tilt of the simulated frames (mountain skylines sit 5-30 deg up)
     skylines : ``detect`` (the real pipeline) or ``truth`` (a diagnosis that bypasses detection
     with the simulator's exact terrain skylines, to separate localisation from detection errors)
     """
@@ -54,6 +55,7 @@ class EvalConfig:
     camera_height_m: float = 1.5
     planet: str = "earth"
     skylines: str = "detect"
+    tilt_deg: float = 15.0
 
     def __post_init__(self):
         if self.skylines not in ("detect", "truth"):
@@ -174,7 +176,7 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
     for s_i, set_name in enumerate(cfg.sets):
         t0 = time.perf_counter()
         case_dirs = simulate_set(dem, set_name, cfg.cases, cfg.seed + s_i, out / "cases" / set_name,
-                                 area=area, overwrite=True)
+                                 area=area, overwrite=True, tilt_deg=cfg.tilt_deg)
         t_sim = (time.perf_counter() - t0) / max(len(case_dirs), 1)
         for k, cdir in enumerate(case_dirs):
             res, extra = run_case(Path(cdir), set_name, cfg, dem, db, rng, k)

@@ -714,12 +714,14 @@ def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
                  camera: str | Camera = "navcam", mode: str = "frames", frames: int | None = None,
                  camera_height_m: float = 1.5, planet="earth", overwrite: bool = False,
                  pano_size: tuple[int, int] = (PANO_WIDTH, PANO_HEIGHT),
-                 progress: bool = False) -> list[Path]:
+                 progress: bool = False, tilt_deg: float = 0.0) -> list[Path]:
     """Render a named robustness set (:data:`SETS`) into ``out/case_NNN`` folders.
 
     Positions are drawn uniformly (off-grid) inside ``area`` (XMIN, YMIN, XMAX, YMAX) [m], default
     :func:`default_area`; headings uniform in [0, 360) deg; everything deterministic for ``seed``.
     Also writes ``out/set.json`` listing the cases. Returns the case folders.
+    tilt_deg : [deg] mast tilt of every frame (mountain skylines sit high: 10-15 deg keeps them in
+        a navcam's view), except where the set chooses its own (SCOM)
     """
     plans = plan_set(dem, name, cases, seed, area=area, camera=camera, mode=mode,
                      camera_height_m=camera_height_m, planet=planet)
@@ -734,7 +736,7 @@ def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
         folders.append(simulate_acquisition(
             dem, p["truth"], out / p["folder"], camera=camera, mode=mode, frames=frames,
             camera_height_m=camera_height_m, planet=planet, overwrite=overwrite, pano_size=pano_size,
-            **p["kwargs"]))
+            **{"tilt_deg": tilt_deg, **p["kwargs"]}))
     listing = {
         "set": name.upper(), "description": SETS[name.upper()], "seed": int(seed), "cases": [
             {"folder": p["folder"], "truth": asdict(p["truth"]),

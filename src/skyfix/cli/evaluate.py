@@ -23,12 +23,14 @@ from .options import overwrite_option
 @click.option("--area", type=float, nargs=4, default=None, metavar="XMIN YMIN XMAX YMAX",
               help="Where cases are drawn [m] (default: the database grid, or the simulator's default).")
 @click.option("--camera-height-m", type=float, default=1.5, show_default=True)
+@click.option("--tilt-deg", type=float, default=15.0, show_default=True,
+              help="Mast tilt of the simulated frames [deg] (SCOM sets its own).")
 @click.option("--skylines", type=click.Choice(["detect", "truth"]), default="detect", show_default=True,
               help="'truth' bypasses detection with the simulator's exact skylines (diagnosis only).")
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @overwrite_option
-def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height_m, skylines, out,
-             overwrite):
+def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height_m, tilt_deg, skylines,
+             out, overwrite):
     """Simulate cases, run the board pipeline, and write results.csv, tables, figures and
     report.html to OUT."""
     from ..evaluate import EvalConfig
@@ -36,7 +38,8 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
 
     cfg = EvalConfig(scenario=scenario, sets=tuple(s.strip().upper() for s in sets.split(",") if s.strip()),
                      cases=cases, seed=seed, area=tuple(area) if area else None,
-                     camera_height_m=camera_height_m, skylines=skylines)
+                     camera_height_m=camera_height_m, skylines=skylines,
+                     tilt_deg=tilt_deg)
     # The command that regenerates the report, as typed (for the report's own footer).
     args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
     command = "skyfix evaluate " + " ".join(shlex.quote(a) for a in args)

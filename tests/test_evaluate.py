@@ -1,0 +1,53 @@
+"""`skyfix evaluate` / `evaluate-detect`: clear refusals, and detection scored on a known answer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from conftest import plane_dem
+from skyfix.cli.main import cli
+from skyfix.errors import ParameterError
+from skyfix.evaluate import EvalConfig
+
+
+def run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def test_config_refuses_unknown_sets_and_scenarios():
+    with pytest.raises(ParameterError, match="unknown set"):
+        EvalConfig(scenario=1, sets=("REF", "NOPE"))
+    with pytest.raises(ParameterError, match="scenario"):
+        EvalConfig(scenario=4)
+    with pytest.raises(ParameterError, match="skylines"):
+        EvalConfig(scenario=2, skylines="oracle")
+
+
+def test_scenario_1_without_a_database_is_a_one_line_error(tmp_dem_file, tmp_path):
+    dem = tmp_dem_file(plane_dem(2_000, 20))
+    r = run("evaluate", "--dem", dem, "--scenario", 1, "--cases", 1, "--out", tmp_path / "e")
+    assert r.exit_code == 2 and "give --db" in r.output and "Traceback" not in r.output
+
+
+def test_evaluate_detect_scores_a_real_labelled_mosaic(tmp_path):
+    """412_1 (a clear Curiosity mosaic) through the CLI: the detector is known to be sub-pixel there."""
+    import shutil
+
+    from conftest import SHARED_DATA
+
+    src = SHARED_DATA / "marsscapes-dev"
+    if not (src / "412_1.png").exists():
+        pytest.skip(f"MarsScapes dev set not found at {src}")
+    for name in ("412_1.png", "412_1.skyline.json"):
+        shutil.copy(src / name, tmp_path / name)
+    r = run("evaluate-detect", "--images", tmp_path, "-o", tmp_path / "scores.csv")
+    assert r.exit_code == 0, r.output
+    assert r.output.strip().splitlines()[-2].split()[0] == "all"
+    from skyfix.evaluate import evaluate_detection
+
+    total = evaluate_detection(tmp_path)[-1]
+    assert total["mean_abs_err_px"] < 1.0 and total["within_3px"] > 0.95 and total["false_rate"] < 0.01
+    assert (tmp_path / "scores.csv").read_text().startswith("image,")
+    assert run("evaluate-detect", "--images", tmp_path / "nope").exit_code == 2
