@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Regenerate docs/example-report/ (the committed example evaluation) from the repo root:
+#   scripts/make_example_report.sh [DB]
+# DB: the 7 x 7 km / 5 m Sierra store for scenario 1 (built here if missing: ~10-25 min on 2 cores).
+set -euo pipefail
+DEM=../shared/data/dem/sierra_nevada_30m.tif
+DB=${1:-../skyfix-data/sierra_7km_5m.zarr}
+OUT=docs/example-report
+CASES=${CASES:-4}
+if [ ! -f "$DB/zarr.json" ] || ! skyfix info "$DB" | grep -q "(complete)"; then
+  skyfix build-db "$DEM" --out "$DB" --bounds -2020450 238257 -2013450 245257 --spacing-m 5
+fi
+skyfix evaluate --dem "$DEM" --scenario 1 --db "$DB" --sets REF,LREL --cases "$CASES" --seed 1 --out "$OUT/scenario1" --overwrite
+skyfix evaluate --dem "$DEM" --scenario 2 --sets REF,LREL,OCCL --cases "$CASES" --seed 2 --out "$OUT/scenario2" --overwrite
+skyfix evaluate --dem "$DEM" --scenario 3 --sets REF,LREL,CLUT --cases "$CASES" --seed 3 --out "$OUT/scenario3" --overwrite
+# The simulated images are reproducible from the seeds; keep the repository small.
+rm -rf "$OUT"/scenario*/cases
