@@ -24,16 +24,8 @@ import numpy as np
 from skyfix.detect import combine_scores, detect_skyline, score_skyline
 from skyfix.formats import read_skyline_json
 
-def _find_dev() -> Path:
-    # ../shared/data from the repo root; a git worktree may sit one level deeper
-    for up in Path(__file__).resolve().parents[1].parents:
-        cand = up / "shared" / "data" / "marsscapes-dev"
-        if cand.is_dir():
-            return cand
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "marsscapes-dev"
-
-
-DEV = _find_dev()
+#: ../shared/data beside the repository
+DEV = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "marsscapes-dev"
 
 
 def _read_rgb(path):

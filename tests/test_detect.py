@@ -15,16 +15,9 @@ from skyfix.errors import ParameterError
 from skyfix.formats import Skyline, read_skyline_json
 
 
-def _find_dev():
-    # ../shared/data from the repo root; a git worktree may sit one level deeper
-    for up in Path(__file__).resolve().parents[1].parents:
-        cand = up / "shared" / "data" / "marsscapes-dev"
-        if cand.is_dir():
-            return cand
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "marsscapes-dev"
+from conftest import SHARED_DATA
 
-
-DEV = _find_dev()
+DEV = SHARED_DATA / "marsscapes-dev"
 METHODS = ["dp", "bayes"]
 
 
