@@ -422,29 +422,43 @@ def _inside(dem, xs, ys, margin):
     return np.asarray(dem.contains(xs, ys, margin), bool) & np.isfinite(dem.height_at(xs, ys))
 
 
-def _refine(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_tilt, workers):
+def _refine(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_tilt, workers,
+            max_moves=3):
     """Local grid search (9 x 9 per level, 4x finer each level) around (x, y) [m].
 
+    When the best point lies on the grid's edge the level is re-centred there and redone (at most
+    ``max_moves`` times in all): with 10 deg pitch/roll the database's candidate can sit 10-15 m
+    from the true basin, beyond the first level's +/- 4 steps.
     Returns (x, y, score, heading_deg, local) with ``local`` the finest level's grid and scores
     (for the position sigma)."""
     n = q.size
     best = None
     local = None
+    moves = 0
     for _ in range(levels):
-        off = np.arange(-4, 5) * step
-        gx, gy = np.meshgrid(x + off, y + off)
-        gx, gy = gx.ravel(), gy.ravel()
-        ok = _inside(dem, gx, gy, 0.0)
-        if not ok.any():
+        while True:
+            off = np.arange(-4, 5) * step
+            gx, gy = np.meshgrid(x + off, y + off)
+            gx, gy = gx.ravel(), gy.ravel()
+            ok = _inside(dem, gx, gy, 0.0)
+            if not ok.any():
+                break
+            gx, gy = gx[ok], gy[ok]
+            sc, sh = _score_points(dem, gx, gy, q, camera_height_m=camera_height_m, planet=planet,
+                                   n_bins=n, remove_tilt=remove_tilt, workers=workers)
+            i = int(np.argmin(sc))
+            on_edge = max(abs(gx[i] - x), abs(gy[i] - y)) > 3.5 * step
+            x, y = float(gx[i]), float(gy[i])
+            best = (x, y, float(sc[i]), float(sh[i]) * 360.0 / n)
+            local = (gx, gy, sc, step)
+            if not on_edge or moves >= max_moves:
+                break
+            moves += 1
+        if best is None:
             break
-        gx, gy = gx[ok], gy[ok]
-        sc, sh = _score_points(dem, gx, gy, q, camera_height_m=camera_height_m, planet=planet,
-                               n_bins=n, remove_tilt=remove_tilt, workers=workers)
-        i = int(np.argmin(sc))
-        x, y = float(gx[i]), float(gy[i])
-        best = (x, y, float(sc[i]), float(sh[i]) * 360.0 / n)
-        local = (gx, gy, sc, step)
         step /= 4.0
+    if best is None:
+        raise SkyfixError(f"no refinement point near ({x:.1f}, {y:.1f}) lies inside the DEM")
     return (*best, local)
 
 
