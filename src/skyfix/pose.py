@@ -634,8 +634,12 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         # Ranked by the clipped cost: plain rms let outlier bins pick the wrong basin.
         results.sort(key=lambda d: d["cost"])
         best = results[0]
-        other = min([d["cost"] for d in results[1:]] +
-                    [c[2] for c in cands[len(results):]] or [np.inf])
+        # "Another basin" is another answer beyond the tolerance: refined candidates often
+        # converge onto the best one, and comparing with a copy of itself said nothing.
+        sep = config.tolerance_m if db is not None else 1.0
+        far = lambda x, y: math.hypot(x - best["x"], y - best["y"]) > sep  # noqa: E731
+        other = min([d["cost"] for d in results[1:] if far(d["x"], d["y"])] +
+                    [c[2] for c in cands[len(results):] if far(c[0], c[1])] or [np.inf])
         best_s = best["cost"]
         psig = _position_sigma(best["local"], best["score"], int(obs.sum()), noise)
         att = best["att"]
