@@ -6,7 +6,10 @@ Pipeline of :func:`locate`:
    basins; without a database (small prior area) a grid is rendered from the DEM over the prior.
 2. refinement of every kept candidate (the source study's single-candidate pyramid fell into
    false minima): fresh skylines rendered from the DEM on finer and finer local grids (each level
-   4x finer, 9 x 9 points), scored with the same shift search (tilt harmonic removed).
+   4x finer, 9 x 9 points), scored with the same shift search (tilt harmonic removed), made
+   robust to gross bins (a near rock) by masking the best point's outlier bins and re-scoring
+   (:func:`robust_scores`); a level whose best point is on its edge is re-centred. Candidates
+   are ranked by a per-bin clipped cost (:func:`robust_cost`), not the plain rms.
 3. attitude: yaw, pitch and roll by Gauss-Newton against the rendered horizon, with restarts at
    -2.5/0/+2.5 deg per axis around the first guess; the query is then re-levelled with the
    estimated attitude and the finest position levels are redone.
