@@ -99,6 +99,7 @@ def run_case(scenario, dem, case, rng, store=None):
             a = rng.uniform(0, 2 * math.pi)
             prior = (c["x"] + d * math.sin(a), c["y"] + d * math.cos(a))
             fix = locate(prof, dem=dem, prior_xy=prior, prior_radius_m=20.0)
+            row.update(prior_x=prior[0], prior_y=prior[1])
         err = float(math.hypot(fix.x - c["x"], fix.y - c["y"]))
         row.update(err_m=err, err=err, heading_err_deg=abs(_ang(fix.heading_deg - c["heading_deg"])),
                    pitch_err_deg=fix.pitch_deg - c["pitch_deg"], roll_err_deg=fix.roll_deg - c["roll_deg"],

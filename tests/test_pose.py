@@ -179,3 +179,30 @@ def test_residual_level_matches_the_simulated_noise_despite_outliers(world):
     # Gaussian noise 0.2 deg: the robust level estimates it; the plain rms is inflated by outliers.
     assert 0.16 < att.robust_rms_deg < 0.25
     assert att.rms_deg > att.robust_rms_deg
+
+
+def _with_near_rock(prof, centre_deg, width_deg=8.0, lift_deg=6.0, spikes=(40, 41, 200, 300)):
+    """The profile with a near rock (a block of bins lifted by ``lift_deg``) and a few spikes."""
+    q = np.array(prof.elevation_deg, float)
+    n = q.size
+    az = np.arange(n) * 360.0 / n
+    rock = np.abs((az - centre_deg + 180.0) % 360.0 - 180.0) <= width_deg / 2
+    q[rock] += lift_deg
+    q[list(spikes)] -= 4.0
+    return Profile(q, prof.sigma_deg, "body", prof.meta)
+
+
+def test_gross_outlier_bins_do_not_move_the_fix(world):
+    # A near rock covering 8 deg of the view (+6 deg) and four -4 deg spikes: in a plain sum of
+    # squares they outweigh all the 0.1 deg noise; the robust search must still land on the truth.
+    dem, st = world
+    tx, ty, th = 812.6, 701.2, 300.0
+    prof = _with_near_rock(synthetic_profile(dem, tx, ty, th, noise_deg=0.1, rng=4), 75.0)
+    fix = locate(prof, dem=dem, prior_xy=(tx + 9.0, ty - 7.0), prior_radius_m=20.0, config=CFG)
+    assert np.hypot(fix.x - tx, fix.y - ty) < 1.0
+    assert abs(_ang(fix.heading_deg - th)) < 0.3
+    tx, ty, th = 733.3, 871.9, 123.4
+    prof = _with_near_rock(synthetic_profile(dem, tx, ty, th, noise_deg=0.1, rng=3), 250.0)
+    fix = locate(prof, db=st, dem=dem, config=CFG)
+    assert np.hypot(fix.x - tx, fix.y - ty) < 3.0
+    assert abs(_ang(fix.heading_deg - th)) < 0.3

@@ -6,7 +6,10 @@ Pipeline of :func:`locate`:
    basins; without a database (small prior area) a grid is rendered from the DEM over the prior.
 2. refinement of every kept candidate (the source study's single-candidate pyramid fell into
    false minima): fresh skylines rendered from the DEM on finer and finer local grids (each level
-   4x finer, 9 x 9 points), scored with the same shift search (tilt harmonic removed).
+   4x finer, 9 x 9 points), scored with the same shift search (tilt harmonic removed), made
+   robust to gross bins (a near rock) by masking the best point's outlier bins and re-scoring
+   (:func:`robust_scores`); a level whose best point is on its edge is re-centred. Candidates
+   are ranked by a per-bin clipped cost (:func:`robust_cost`), not the plain rms.
 3. attitude: yaw, pitch and roll by Gauss-Newton against the rendered horizon, with restarts at
    -2.5/0/+2.5 deg per axis around the first guess; the query is then re-levelled with the
    estimated attitude and the finest position levels are redone.
@@ -206,7 +209,8 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
 class Fix:
     """The answer of :func:`locate` (``conventions.md``): position [m] in ``crs``, lon/lat [deg],
     heading/pitch/roll [deg], 1-sigma position [m] and heading [deg], calibrated ``confidence``,
-    ``score`` (mean squared residual [deg^2]) and the top candidates."""
+    ``score`` (mean squared residual [deg^2], clipped per bin at max(3 noise, 0.5 deg) after
+    refinement) and the top candidates."""
 
     x: float
     y: float
@@ -345,7 +349,8 @@ def _profile_arrays(profile):
     return el, noise
 
 
-def _score_points(dem, xs, ys, query, *, camera_height_m, planet, n_bins, workers=2):
+def _render_points(dem, xs, ys, *, camera_height_m, planet, n_bins):
+    """(N, n_bins) float32 world-frame skylines [deg] at (xs, ys) [m], bin-averaged."""
     from .horizon import render_horizons
 
     # A measured bin averages the skyline over its width: render 5 sub-bins per bin and average,
@@ -354,38 +359,109 @@ def _score_points(dem, xs, ys, query, *, camera_height_m, planet, n_bins, worker
     hb = render_horizons(dem, xs, ys, camera_height_m=camera_height_m, planet=planet,
                          azimuth_bins=n_bins * k)
     p = np.nan_to_num(hb.elevation_deg, nan=0.0)
-    p = np.roll(p, k // 2, axis=1).reshape(p.shape[0], n_bins, k).mean(axis=2)
-    return score_profiles(p, query, workers)
+    return np.roll(p, k // 2, axis=1).reshape(p.shape[0], n_bins, k).mean(axis=2).astype(np.float32)
+
+
+def outlier_bins(q, p_world, shift_bins, remove_tilt=True, floor_deg=0.5, k_sigma=3.5):
+    """Observed bins of the query [deg] that a prediction cannot explain (a near rock, a glint).
+
+    p_world : (n,) [deg] world skyline; shift_bins : best shift [bins] (``q[j] ~ p[j + shift]``).
+    The residual, after removing the offset (and tilt harmonic), is compared with
+    ``max(k_sigma * 1.4826 MAD, floor_deg)``: Gaussian detection noise stays in, gross errors
+    (>= 1 deg) go out. Returns a bool (n,) mask, True = outlier.
+    """
+    from .match import _basis
+
+    q = np.asarray(q, np.float64)
+    n = q.size
+    obs = np.isfinite(q)
+    j = np.arange(n, dtype=np.float64)
+    pred = np.interp((j + float(shift_bins)) % n, np.arange(n + 1),
+                     np.append(np.asarray(p_world, np.float64), float(p_world[0])))
+    u = _basis(n, remove_tilt)[obs]
+    r = q[obs] - pred[obs]
+    coef, *_ = np.linalg.lstsq(u, r, rcond=None)
+    r = r - u @ coef
+    thr = max(k_sigma * 1.4826 * float(np.median(np.abs(r - np.median(r)))), floor_deg)
+    out = np.zeros(n, bool)
+    out[np.flatnonzero(obs)[np.abs(r) > thr]] = True
+    return out
+
+
+def robust_scores(p, q, *, remove_tilt=True, workers=2, rounds=2):
+    """Shift search scores of skylines ``p`` (N, n) [deg] against ``q`` with outlier bins dropped.
+
+    Plain sums of squares let a few gross bins (a 5 deg outlier weighs as much as 600 bins of
+    0.2 deg noise) choose the position. The best point's residuals flag outlier bins
+    (:func:`outlier_bins`); all points are re-scored with those bins masked (the same mask for
+    every point, so scores stay comparable), ``rounds`` times. Rendering is not repeated.
+    Returns (score [deg^2] (N,), shift [bins] (N,), the masked query (n,) [deg]).
+    """
+    q = np.asarray(q, np.float64)
+    n_obs = int(np.isfinite(q).sum())
+    qm = q
+    sc, sh = score_profiles(p, prepare_query(qm, remove_tilt, min_observed=8), workers)
+    for _ in range(rounds):
+        i = int(np.argmin(sc))
+        bad = outlier_bins(q, p[i], sh[i], remove_tilt)
+        # Never drop so many bins that the position information goes with them.
+        if not bad.any() or n_obs - bad.sum() < max(20, n_obs // 2):
+            break
+        q_new = np.where(bad, np.nan, q)
+        if np.array_equal(np.isfinite(q_new), np.isfinite(qm)):
+            break
+        qm = q_new
+        sc, sh = score_profiles(p, prepare_query(qm, remove_tilt, min_observed=8), workers)
+    return sc, sh, qm
+
+
+def _score_points(dem, xs, ys, q, *, camera_height_m, planet, n_bins, remove_tilt=True, workers=2):
+    p = _render_points(dem, xs, ys, camera_height_m=camera_height_m, planet=planet, n_bins=n_bins)
+    sc, sh, _ = robust_scores(p, q, remove_tilt=remove_tilt, workers=workers)
+    return sc, sh
 
 
 def _inside(dem, xs, ys, margin):
     return np.asarray(dem.contains(xs, ys, margin), bool) & np.isfinite(dem.height_at(xs, ys))
 
 
-def _refine(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_tilt, workers):
+def _refine(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_tilt, workers,
+            max_moves=3):
     """Local grid search (9 x 9 per level, 4x finer each level) around (x, y) [m].
 
+    When the best point lies on the grid's edge the level is re-centred there and redone (at most
+    ``max_moves`` times in all): with 10 deg pitch/roll the database's candidate can sit 10-15 m
+    from the true basin, beyond the first level's +/- 4 steps.
     Returns (x, y, score, heading_deg, local) with ``local`` the finest level's grid and scores
     (for the position sigma)."""
     n = q.size
-    query = prepare_query(q, remove_tilt, min_observed=8)
     best = None
     local = None
+    moves = 0
     for _ in range(levels):
-        off = np.arange(-4, 5) * step
-        gx, gy = np.meshgrid(x + off, y + off)
-        gx, gy = gx.ravel(), gy.ravel()
-        ok = _inside(dem, gx, gy, 0.0)
-        if not ok.any():
+        while True:
+            off = np.arange(-4, 5) * step
+            gx, gy = np.meshgrid(x + off, y + off)
+            gx, gy = gx.ravel(), gy.ravel()
+            ok = _inside(dem, gx, gy, 0.0)
+            if not ok.any():
+                break
+            gx, gy = gx[ok], gy[ok]
+            sc, sh = _score_points(dem, gx, gy, q, camera_height_m=camera_height_m, planet=planet,
+                                   n_bins=n, remove_tilt=remove_tilt, workers=workers)
+            i = int(np.argmin(sc))
+            on_edge = max(abs(gx[i] - x), abs(gy[i] - y)) > 3.5 * step
+            x, y = float(gx[i]), float(gy[i])
+            best = (x, y, float(sc[i]), float(sh[i]) * 360.0 / n)
+            local = (gx, gy, sc, step)
+            if not on_edge or moves >= max_moves:
+                break
+            moves += 1
+        if best is None:
             break
-        gx, gy = gx[ok], gy[ok]
-        sc, sh = _score_points(dem, gx, gy, query, camera_height_m=camera_height_m, planet=planet,
-                               n_bins=n, workers=workers)
-        i = int(np.argmin(sc))
-        x, y = float(gx[i]), float(gy[i])
-        best = (x, y, float(sc[i]), float(sh[i]) * 360.0 / n)
-        local = (gx, gy, sc, step)
         step /= 4.0
+    if best is None:
+        raise SkyfixError(f"no refinement point near ({x:.1f}, {y:.1f}) lies inside the DEM")
     return (*best, local)
 
 
@@ -465,7 +541,23 @@ def _refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, pla
         fine = step0 / 4.0 ** (config.levels - 1)
         x, y, s, hd, local = _refine(dem, ql, x, y, fine, 1, **kw)
         att = fit(world_at(x, y), att.yaw_deg, att.pitch_deg, att.roll_deg, (0.0,))
-    return x, y, s, local, att
+    cost = robust_cost(q, world_at(x, y), att, noise, prior_pitch_deg=prior_pitch_deg,
+                       prior_roll_deg=prior_roll_deg)
+    return x, y, s, local, att, cost
+
+
+def robust_cost(q, world_el_deg, att, noise_deg, *, prior_pitch_deg=0.0, prior_roll_deg=0.0):
+    """Clipped mean squared residual [deg^2] of the query against the world horizon seen with
+    attitude ``att``: each bin counts at most ``(max(3 noise, 0.5 deg))^2``, so a few gross
+    bins (a near rock) cannot out-vote the rest when candidates are ranked."""
+    q = np.asarray(q, np.float64)
+    obs = np.isfinite(q)
+    pred = body_profile(world_el_deg, att.yaw_deg, att.pitch_deg, att.roll_deg, n_bins=q.size,
+                        prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+    r = q[obs] - pred[obs]
+    r = r - np.median(r)
+    c = max(3.0 * noise_deg, 0.5)
+    return float(np.mean(np.minimum(r * r, c * c)))
 
 
 
@@ -516,9 +608,9 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         if not ok.any():
             raise ParameterError("the prior area lies outside the DEM")
         gx, gy = gx[ok], gy[ok]
-        query = prepare_query(q, config.match.remove_tilt, config.match.min_observed)
-        sc, sh = _score_points(dem, gx, gy, query, camera_height_m=camera_height_m, planet=planet,
-                               n_bins=n, workers=workers)
+        prepare_query(q, config.match.remove_tilt, config.match.min_observed)  # validates the view
+        sc, sh = _score_points(dem, gx, gy, q, camera_height_m=camera_height_m, planet=planet,
+                               n_bins=n, remove_tilt=config.match.remove_tilt, workers=workers)
         order = np.argsort(sc)
         cands = []
         for i in order:
@@ -537,23 +629,28 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         from .horizon import render_horizons
 
         for cx, cy, cs, ch in cands[: config.refine_candidates]:
-            x, y, s, local, att = _refine_candidate(
+            x, y, s, local, att, cost = _refine_candidate(
                 dem, q, cx, cy, ch, step0, config, camera_height_m=camera_height_m, planet=planet,
                 prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg, noise=noise)
             results.append(dict(x=x, y=y, score=s, heading=att.yaw_deg, att=att, local=local,
-                                db_score=cs))
-        results.sort(key=lambda d: d["att"].rms_deg)
+                                db_score=cs, cost=cost))
+        # Ranked by the clipped cost: plain rms let outlier bins pick the wrong basin.
+        results.sort(key=lambda d: d["cost"])
         best = results[0]
-        other = min([d["att"].rms_deg ** 2 for d in results[1:]] +
-                    [c[2] for c in cands[len(results):]] or [np.inf])
-        best_s = best["att"].rms_deg ** 2
+        # "Another basin" is another answer beyond the tolerance: refined candidates often
+        # converge onto the best one, and comparing with a copy of itself said nothing.
+        sep = config.tolerance_m if db is not None else 1.0
+        far = lambda x, y: math.hypot(x - best["x"], y - best["y"]) > sep  # noqa: E731
+        other = min([d["cost"] for d in results[1:] if far(d["x"], d["y"])] +
+                    [c[2] for c in cands[len(results):] if far(c[0], c[1])] or [np.inf])
+        best_s = best["cost"]
         psig = _position_sigma(best["local"], best["score"], int(obs.sum()), noise)
         att = best["att"]
         fx, fy, heading, pitch, roll = best["x"], best["y"], att.yaw_deg, att.pitch_deg, att.roll_deg
         hsig, rms = att.yaw_sigma_deg, att.robust_rms_deg
         tilt = math.hypot(pitch - prior_pitch_deg, roll - prior_roll_deg)
         cand_out = [{"x": d["x"], "y": d["y"], "heading_deg": d["heading"],
-                     "score": d["att"].rms_deg ** 2} for d in results]
+                     "score": d["cost"]} for d in results]
         cand_out += [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]}
                      for c in cands[len(results):]]
     else:
