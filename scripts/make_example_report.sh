@@ -15,3 +15,9 @@ skyfix evaluate --dem "$DEM" --scenario 2 --sets REF,LREL,OCCL --cases "$CASES" 
 skyfix evaluate --dem "$DEM" --scenario 3 --sets REF,LREL,CLUT --cases "$CASES" --seed 3 --out "$OUT/scenario3" --overwrite
 # The simulated images are reproducible from the seeds; keep the repository small.
 rm -rf "$OUT"/scenario*/cases
+# Diagnosis: the same cases with detection bypassed by the simulator's exact skylines, to separate
+# the localisation layer's accuracy from the detector's (labelled as such in each report).
+skyfix evaluate --dem "$DEM" --scenario 1 --db "$DB" --sets REF,LREL --cases "$CASES" --seed 1 --skylines truth --out "$OUT/scenario1-truth-skylines" --overwrite
+skyfix evaluate --dem "$DEM" --scenario 2 --sets REF,LREL,OCCL --cases "$CASES" --seed 2 --skylines truth --out "$OUT/scenario2-truth-skylines" --overwrite
+skyfix evaluate --dem "$DEM" --scenario 3 --sets REF,LREL,CLUT --cases "$CASES" --seed 3 --skylines truth --out "$OUT/scenario3-truth-skylines" --overwrite
+rm -rf "$OUT"/scenario*/cases
