@@ -131,6 +131,42 @@ def _bilinear(z, u, v):
 
 
 @numba.njit(cache=True, nogil=True)
+def _pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end):
+    """Where a ray stands in the max pyramid: the level-0 cell (i, j) at distance ``t`` [m], its
+    block (bi, bj) at ``level``, and the distance [m] at which the ray leaves that block (> t).
+
+    u = u0 + du t, v = v0 + dv t in index space. Shared by the horizon renderer and the ray caster.
+    """
+    # Nudge along the ray before flooring: a point exactly on a grid line (a position on a whole
+    # cell coordinate, a ray along a row) must land in the block it is entering, or the exit
+    # distance is t itself and the walk creeps forward in 1e-6 m steps.
+    u = u0 + du * t + (1e-9 if du > 0.0 else (-1e-9 if du < 0.0 else 0.0))
+    v = v0 + dv * t + (1e-9 if dv > 0.0 else (-1e-9 if dv < 0.0 else 0.0))
+    j = min(max(int(math.floor(u)), 0), nx - 2)
+    i = min(max(int(math.floor(v)), 0), ny - 2)
+    bi = i >> level
+    bj = j >> level
+    size = 1 << level
+    # du, dv are exactly 0 for rays along grid lines (see _render_batch).
+    if du > 0.0:
+        tu = ((bj + 1) * size - u0) / du
+    elif du < 0.0:
+        tu = (bj * size - u0) / du
+    else:
+        tu = np.inf
+    if dv > 0.0:
+        tv = ((bi + 1) * size - v0) / dv
+    elif dv < 0.0:
+        tv = (bi * size - v0) / dv
+    else:
+        tv = np.inf
+    t_exit = min(tu, tv, t_end)
+    if t_exit <= t:
+        t_exit = t + 1e-6
+    return i, j, bi, bj, t_exit
+
+
+@numba.njit(cache=True, nogil=True)
 def _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, tol, t_min, t_seed):
     """Max tangent of the elevation angle along one ray (index space; t in metres).
 
@@ -152,38 +188,7 @@ def _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, t
     level = 0
     eps_t = 1e-6
     while t < t_end:
-        u = u0 + du * t
-        v = v0 + dv * t
-        j = int(math.floor(u))
-        i = int(math.floor(v))
-        if j > nx - 2:
-            j = nx - 2
-        if i > ny - 2:
-            i = ny - 2
-        if j < 0:
-            j = 0
-        if i < 0:
-            i = 0
-        # Block of this level holding the point, and where the ray leaves it.
-        bi = i >> level
-        bj = j >> level
-        size = 1 << level
-        # du, dv are exactly 0 for rays along grid lines (see _render_batch).
-        if du > 0.0:
-            tu = ((bj + 1) * size - u0) / du
-        elif du < 0.0:
-            tu = (bj * size - u0) / du
-        else:
-            tu = np.inf
-        if dv > 0.0:
-            tv = ((bi + 1) * size - v0) / dv
-        elif dv < 0.0:
-            tv = (bi * size - v0) / dv
-        else:
-            tv = np.inf
-        t_exit = min(tu, tv, t_end)
-        if t_exit <= t:
-            t_exit = t + eps_t
+        i, j, bi, bj, t_exit = _pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end)
         hmax = pdata[poffs[level] + bi * pcols[level] + bj]
         if hmax == -np.inf:
             ub = -np.inf

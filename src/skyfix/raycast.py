@@ -35,7 +35,7 @@ import numpy as np
 from .camera import Camera, r_world_body, r_world_cam
 from .dem import Dem
 from .formats import PanoramaSpec
-from .horizon import T_MIN_M, _packed
+from .horizon import T_MIN_M, _packed, _pyramid_block
 from .planets import get_planet
 
 #: projection codes of the kernels
@@ -267,39 +267,7 @@ def _first_hit(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, tan_el, t_end,
     level = 0
     eps_t = 1e-6
     while t < t_end:
-        # Nudge along the ray before flooring: a point exactly on a grid line (a rover on a whole
-        # cell coordinate, a ray along a row) must land in the block it is entering, or the exit
-        # distance is 0 and the walk creeps forward by eps_t.
-        u = u0 + du * t + (1e-9 if du > 0 else -1e-9)
-        v = v0 + dv * t + (1e-9 if dv > 0 else -1e-9)
-        j = int(math.floor(u))
-        i = int(math.floor(v))
-        if j > nx - 2:
-            j = nx - 2
-        if i > ny - 2:
-            i = ny - 2
-        if j < 0:
-            j = 0
-        if i < 0:
-            i = 0
-        bi = i >> level
-        bj = j >> level
-        size = 1 << level
-        if du > 0:
-            tu = ((bj + 1) * size - u0) / du
-        elif du < 0:
-            tu = (bj * size - u0) / du
-        else:
-            tu = np.inf
-        if dv > 0:
-            tv = ((bi + 1) * size - v0) / dv
-        elif dv < 0:
-            tv = (bi * size - v0) / dv
-        else:
-            tv = np.inf
-        t_exit = min(tu, tv, t_end)
-        if t_exit <= t:
-            t_exit = t + eps_t
+        i, j, bi, bj, t_exit = _pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end)
         hmax = pdata[poffs[level] + bi * pcols[level] + bj]
         if hmax == -np.inf:
             ub = -np.inf
