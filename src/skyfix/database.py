@@ -603,6 +603,7 @@ class Block:
     x, y : float64 (n,) [m] of each position, row-major within the block (n = rows * cols)
     elevation : int16 (n, bins) raw (multiply by ``scale_deg``; ``missing`` = no terrain)
     ground_z_m : float32 (n,) [m]; min_ray_m : float32 (n,) [m]; edge_bins : int16 (n,)
+    (the last three None where a reader or an in-memory store does not provide them)
     """
 
     row0: int
@@ -612,9 +613,9 @@ class Block:
     x: np.ndarray
     y: np.ndarray
     elevation: np.ndarray
-    ground_z_m: np.ndarray
-    min_ray_m: np.ndarray
-    edge_bins: np.ndarray
+    ground_z_m: np.ndarray | None = None
+    min_ray_m: np.ndarray | None = None
+    edge_bins: np.ndarray | None = None
     scale_deg: float = SCALE_DEG
     missing: int = MISSING
 

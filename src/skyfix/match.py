@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .database import Block  # one block type for stores on disk and in memory
 from .errors import DatabaseError, ParameterError
 
 #: raw value for "no skyline" in an int16 database
@@ -269,19 +270,6 @@ def decimate_query(q: np.ndarray, factor: int) -> np.ndarray:
 
 
 # --- an in-memory store with the database's block interface ---------------------------------------
-
-@dataclass
-class Block:
-    """Positions of one database block: row0/col0/rows/cols in the grid, x/y [m], int16 elevations."""
-
-    row0: int
-    col0: int
-    rows: int
-    cols: int
-    x: np.ndarray
-    y: np.ndarray
-    elevation: np.ndarray
-    ground_z_m: np.ndarray | None = None
 
 
 @dataclass
