@@ -80,6 +80,9 @@ class DpOptions:
         few confident mistakes cannot dominate a column
     texture_ratio : (``region="texture"``) a pixel whose local texture is below
         ``texture_ratio`` times the image's median texture looks like sky
+    noise_ratio : ... or below ``noise_ratio`` times the sensor noise's texture (estimated from
+        the image's smoothest blocks): over smooth ground a noisy sky's texture exceeds
+        ``texture_ratio`` times the median, and would otherwise look like terrain
     none_cost : extra cost of the no-skyline state per column (what a missing edge costs)
     switch_cost : cost of switching between skyline and no-skyline between columns
     vertical_cost : extra cost per pixel of a move within a column
@@ -101,6 +104,7 @@ class DpOptions:
     model_pixels: int = 250_000
     llr_clip: float = 1.5
     texture_ratio: float = 0.35
+    noise_ratio: float = 1.0
     w_model: float = 0.25
     none_cost: float = 0.2
     switch_cost: float = 8.0
@@ -425,6 +429,22 @@ def _texture(gray_s, valid_s, radius):
     return cv2.blur(mag, (2 * k + 1, 3))
 
 
+def _noise_level(gray_s, valid_s, block=15):
+    """Sensor noise level [grey levels]: the mean absolute response to the second-difference mask
+    of Immerkaer (1996), which is blind to linear gradients such as the sky's, over blocks, in the
+    smoothest 5 % of the valid blocks (the sky, when there is one). White noise of std s gives
+    about 4 s here and a texture (:func:`_texture`) of about 2 s, so ``noise_ratio`` 1 puts the
+    sky threshold near twice the noise's own texture."""
+    import cv2
+
+    if not valid_s.any():
+        return 0.0
+    n = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    lap = np.abs(cv2.filter2D(np.asarray(gray_s, np.float32), -1, n))
+    loc = cv2.blur(lap, (block, block))
+    return float(np.percentile(loc[valid_s], 5))
+
+
 # --- the dp detector -----------------------------------------------------------------------------
 
 def _dp_costs(gray_s, valid_s, opt: DpOptions, d=None):
@@ -454,9 +474,12 @@ def _dp_costs(gray_s, valid_s, opt: DpOptions, d=None):
         # the median alone collapses to ~0 when over half the image is smooth (a big clean sky,
         # smooth rendered terrain), and then nothing looks like sky: floor it by the textured part
         med = max(float(np.median(tv)), 0.25 * float(np.percentile(tv, 90)))
+        # a pixel whose texture is no more than the sensor noise's is sky-like whatever the rest
+        # of the image does: in a noisy frame over smooth ground 0.35 median is below the noise
+        thr = max(opt.texture_ratio * med, opt.noise_ratio * _noise_level(gray_s, valid_s))
         # log ratio to the sky threshold: < 0 looks like sky, > 0 like terrain; clipped so a few
         # wild pixels cannot dominate a column
-        d = np.clip(np.log((tex + 0.05 * med + 1e-6) / (opt.texture_ratio * med + 1e-6)),
+        d = np.clip(np.log((tex + 0.05 * med + 1e-6) / (thr + 1e-6)),
                     -1.0, 1.0)
     P = _column_prefix(d, valid_s)  # (h + 1, w)
 
