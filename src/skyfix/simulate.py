@@ -286,6 +286,74 @@ def _texture(px, py, footprint, seed, wavelength, octaves, out):
                 out[i, j] = 0.5
 
 
+@numba.njit(cache=True, nogil=True)
+def _fbm_slope(x, y, seed, wavelength, octaves, footprint, slope, decay):
+    """Gradient (dh/dx, dh/dy) [m/m] of a fractal height field below the DEM's resolution.
+
+    Octave k has wavelength ``wavelength / 2**k`` [m] and a slope amplitude ``slope decay**k``
+    (a rough surface is steeper at small scales); octaves finer than the footprint fade out, as
+    in :func:`_fbm`, so distant ground shows only the relief its pixels can resolve.
+    """
+    gx = 0.0
+    gy = 0.0
+    w = wavelength
+    a = slope
+    for k in range(octaves):
+        fade = min(max((w / max(footprint, 1e-9) - 1.0) / 3.0, 0.0), 1.0)
+        if fade > 0.0:
+            u = x / w
+            v = y / w
+            ix = math.floor(u)
+            iy = math.floor(v)
+            fx = u - ix
+            fy = v - iy
+            sx = fx * fx * (3 - 2 * fx)
+            sy = fy * fy * (3 - 2 * fy)
+            dsx = 6.0 * fx * (1 - fx)
+            dsy = 6.0 * fy * (1 - fy)
+            i = np.int64(ix)
+            j = np.int64(iy)
+            h00 = _hash01(i, j, seed + 50 + k)
+            h10 = _hash01(i + 1, j, seed + 50 + k)
+            h01 = _hash01(i, j + 1, seed + 50 + k)
+            h11 = _hash01(i + 1, j + 1, seed + 50 + k)
+            # height = a w (value noise - 0.5): its gradient is a times the noise's unit derivative
+            gx += fade * a * ((h10 - h00) * (1 - sy) + (h11 - h01) * sy) * dsx
+            gy += fade * a * ((h01 - h00) * (1 - sx) + (h11 - h10) * sx) * dsy
+        w *= 0.5
+        a *= decay
+    return gx, gy
+
+
+@numba.njit(cache=True, parallel=True, nogil=True)
+def _roughen_normals(px, py, footprint, ground, seed, normal):
+    """Tilt the ground's normals (in place) by the slopes of :func:`_fbm_slope`.
+
+    The DEM's bilinear facets are smooth inside a cell; real ground is rough at every scale, and
+    its shading is what gives terrain its texture in images (measured on the Curiosity dev
+    mosaics: the terrain's local gradient is 10-20x the sky's; without this, 2-4x). Only the
+    shading changes, so the skyline stays the ray caster's exact one.
+    """
+    H, W = ground.shape
+    for i in numba.prange(H):
+        for j in range(W):
+            if not ground[i, j]:
+                continue
+            gx, gy = _fbm_slope(px[i, j], py[i, j], seed, 40.0, 10, footprint[i, j], 0.35, 0.9)
+            nx = normal[i, j, 0]
+            ny = normal[i, j, 1]
+            nz = normal[i, j, 2]
+            if nz <= 1e-3:
+                continue
+            # surface z = Z + h: normal ~ (-Zx - hx, -Zy - hy, 1), with -Zx = nx / nz
+            ax = nx / nz - gx
+            ay = ny / nz - gy
+            inv = 1.0 / math.sqrt(ax * ax + ay * ay + 1.0)
+            normal[i, j, 0] = ax * inv
+            normal[i, j, 1] = ay * inv
+            normal[i, j, 2] = inv
+
+
 def _sky(direction: np.ndarray, scene: Scene, horizon, zenith) -> np.ndarray:
     el = np.clip(direction[..., 2], -1, 1)
     w = np.clip(el, 0, 1) ** 0.45  # brighter near the horizon, quickly darker up
@@ -367,9 +435,12 @@ def shade(cast: CastResult, scene: Scene, *, focal_px: float, rng: np.random.Gen
         rock_col = np.array([0.30, 0.24, 0.20]) if scene.planet == "mars" else np.array([0.33, 0.32, 0.30])
         albedo[rock] = rock_col * (0.6 + 0.8 * tex2[rock, None])
 
-    # Lambert shading with a sky ambient term.
+    # Lambert shading with a sky ambient term, on ground roughened below the DEM's resolution.
     sun = scene.sun
-    ndl = np.clip(cast.normal.astype(np.float64) @ sun, 0, None)
+    normal = cast.normal.astype(np.float64)
+    _roughen_normals(pts[..., 0].copy(), pts[..., 1].copy(), footprint, kind == 1,
+                     scene.texture_seed, normal)
+    ndl = np.clip(normal @ sun, 0, None)
     light = 0.25 + 1.0 * ndl
     surf = albedo * light[..., None]
 
