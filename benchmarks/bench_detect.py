@@ -5,7 +5,7 @@ both have a skyline, share within 3 px and 10 px, false-skyline and missed-skyli
 valid columns, and milliseconds per megapixel (wall time on this machine: noisy when shared).
 
     PYTHONPATH=src python benchmarks/bench_detect.py [--methods dp,bayes] [--data DIR]
-        [--only NAME,...] [--set KEY=VALUE ...] [--cv] [--sim DIR]
+        [--only NAME,...] [--set KEY=VALUE ...] [--cv [--cv-sim SIMS]] [--sim DIR]
 
 ``--cv`` adds a leave-one-image-out table for ``dp``: for each image, the sky classifier is
 retrained (same recipe as ``scripts/train_sky_model.py``) on the other labelled images and the
@@ -90,17 +90,32 @@ def sim_pairs(set_dir):
             yield f"{png.parent.name}/{png.stem}", _read_rgb(png), read_skyline_json(truth)
 
 
-def loo_models(folder, names):
-    """{name: sky model trained on every labelled image of ``folder`` except ``name``}."""
+def loo_models(folder, names, sim_dirs=(), sim_max_frames=10):
+    """{name: sky model trained on every labelled image of ``folder`` except ``name``}, by the
+    recipe of ``scripts/train_sky_model.py``: each image and its sky-dominant crop, plus the
+    simulated frames of ``sim_dirs`` (never held out: they are not dev images)."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-    from train_sky_model import read_labelled
+    from train_sky_model import read_labelled, read_simulated, sky_dominant_crop
 
     from skyfix.skymodel import fit_sky_model, training_pixels
 
-    parts = {name: training_pixels(img, sky) for name, img, sky in read_labelled(folder)}
+    def views(img, sky):
+        out = [training_pixels(img, sky)]
+        crop = sky_dominant_crop(img, sky)
+        if crop is not None:
+            out.append(training_pixels(*crop))
+        return out
+
+    parts = {name: views(img, sky) for name, img, sky in read_labelled(folder)}
+    shared = []
+    for k, d in enumerate(sim_dirs):
+        share = sim_max_frames // len(sim_dirs) + (k < sim_max_frames % len(sim_dirs))
+        for _, img, sky in read_simulated(d, share):
+            shared += views(img, sky)
     models = {}
     for name in names:
-        models[name], _ = fit_sky_model([p for n, p in parts.items() if n != name])
+        train = shared + [v for n, p in parts.items() if n != name for v in p]
+        models[name], _ = fit_sky_model(train)
         print(f"   trained held-out model for {name}", file=sys.stderr, flush=True)
     return models
 
@@ -115,6 +130,8 @@ def main(argv=None):
     ap.add_argument("--cv", action="store_true",
                     help="also a leave-one-image-out table (retrains the sky model per image)")
     ap.add_argument("--sim", default="", help="folder of simulated sets (one sub-folder per set)")
+    ap.add_argument("--cv-sim", default="",
+                    help="training sims for --cv (the folder scripts/make_sky_sims.sh wrote)")
     ap.add_argument("--no-all", action="store_true", help="skip the shipped-model tables")
     args = ap.parse_args(argv)
     options = {}
@@ -132,7 +149,8 @@ def main(argv=None):
         for m in args.methods.split(","):
             run_set(pairs, m, title="(shipped model)", **(options if m == "dp" else {}))
     if args.cv:
-        models = loo_models(folder, [p[0] for p in pairs])
+        sim_dirs = sorted(p for p in Path(args.cv_sim).iterdir() if p.is_dir()) if args.cv_sim else []
+        models = loo_models(folder, [p[0] for p in pairs], sim_dirs)
         run_set(pairs, "dp", models=models, title="(leave-one-image-out sky model)", **options)
     if args.sim:
         for set_dir in sorted(p for p in Path(args.sim).iterdir() if p.is_dir()):

@@ -10,7 +10,8 @@ Reads every labelled mosaic of the dev set (``NAME.png`` + ``NAME_label.png``, s
 
 ``--sim`` adds simulated acquisitions (``skyfix simulate-set`` output), labelled exactly from the
 simulator's visible skylines, so that the classifier also knows skies the real dev set lacks
-(Earth's blue, clouds, glare). The shipped model was trained with the sets that
+(Earth's blue, clouds, glare). Each image also enters as a crop cut just below its skyline, so
+that sky dominates it (:func:`sky_dominant_crop`; ``--no-sky-crops`` to skip). The shipped model was trained with the sets that
 ``scripts/make_sky_sims.sh`` renders (seeds 901-905, never used for evaluation).
 
 The held-out (leave-one-image-out) accuracy of this recipe is printed by
@@ -77,6 +78,30 @@ def read_simulated(folder, max_frames):
         yield f"{png.parent.parent.name}/{png.parent.name}/{png.stem}", img, mask
 
 
+def sky_dominant_crop(img, sky, sky_share=0.7):
+    """The image cut just below its skyline, so that about ``sky_share`` of the kept valid
+    pixels are sky: (image, sky mask), or None when there is too little sky.
+
+    The classifier's features are relative to image-wide medians. The dev mosaics are mostly
+    terrain, so a frame that is mostly sky (a mast tilted up, a panorama's upper half) puts the
+    median in the sky and, untrained on that, the classifier called such skies terrain."""
+    valid = np.any(img > 0, axis=2) if img.ndim == 3 else img > 0
+    n_sky = int((sky & valid).sum())
+    if n_sky < 2000:
+        return None
+    cols = np.flatnonzero(sky.any(axis=0))
+    last_sky = np.array([np.flatnonzero(sky[:, c])[-1] for c in cols])
+    r0 = int(np.percentile(last_sky, 90)) + 1
+    terr_per_row = (valid & ~sky).sum(axis=1)
+    want = n_sky * (1 - sky_share) / sky_share  # terrain pixels to keep
+    cum = np.cumsum(terr_per_row)
+    r1 = int(np.searchsorted(cum, cum[min(r0, len(cum) - 1)] + want))
+    r1 = max(r0 + 8, min(r1, img.shape[0]))
+    if r1 >= img.shape[0] - 8:
+        return None
+    return img[:r1].copy(), sky[:r1].copy()
+
+
 def main(argv=None):
     from skyfix.skymodel import fit_sky_model, training_pixels
 
@@ -89,6 +114,8 @@ def main(argv=None):
                     help="folder of simulated acquisitions to add (repeatable)")
     ap.add_argument("--sim-max-frames", type=int, default=24,
                     help="at most this many simulated frames in all")
+    ap.add_argument("--no-sky-crops", dest="sky_crops", action="store_false",
+                    help="do not add a sky-dominant crop of each image (see sky_dominant_crop)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     if out.exists() and not args.overwrite:
@@ -102,9 +129,15 @@ def main(argv=None):
     import itertools
 
     for name, img, sky in itertools.chain(read_labelled(args.data), *sims):
-        X, y = training_pixels(img, sky)
-        parts.append((X, y))
-        print(f"{name}: {len(y)} pixels, {100 * y.mean():.1f} % sky", file=sys.stderr)
+        views = [("", img, sky)]
+        if args.sky_crops:
+            crop = sky_dominant_crop(img, sky)
+            if crop is not None:
+                views.append((" (sky-dominant crop)", *crop))
+        for tag, im, sk in views:
+            X, y = training_pixels(im, sk)
+            parts.append((X, y))
+            print(f"{name}{tag}: {len(y)} pixels, {100 * y.mean():.1f} % sky", file=sys.stderr)
     if not parts:
         raise SystemExit(f"no labelled images in {args.data}")
     model, clf = fit_sky_model(parts, seed=args.seed)

@@ -70,12 +70,14 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
               metavar="W H", help="Panorama size [px] (360 x 90 deg).")
 @click.option("--frames", type=int, default=None, help="Frames per case (default: a full turn).")
 @click.option("--camera-height-m", type=float, default=1.5, show_default=True)
+@click.option("--tilt-deg", type=float, default=0.0, show_default=True,
+              help="Mast tilt of the frames, up positive [deg] (SCOM sets its own).")
 @click.option("--planet", default="earth", show_default=True, help="earth, mars or a radius [m].")
 @click.option("--crs", default=None, help="Target CRS when the DEM must be reprojected.")
 @click.option("--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
 @click.option("--overwrite", is_flag=True, help="Replace the contents of a non-empty --out.")
-def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, camera_height_m, planet, crs,
-                 out, overwrite):
+def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, camera_height_m, tilt_deg,
+                 planet, crs, out, overwrite):
     """Render a named robustness set of acquisitions (one subfolder per case)."""
     from ..dem import load_dem
     from ..errors import ParameterError
@@ -88,7 +90,7 @@ def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, 
     d = load_dem(dem, crs=crs)
     folders = run_set(d, name, cases, seed, out, area=area or None, camera=camera, mode=mode,
                       frames=frames, camera_height_m=camera_height_m, planet=planet,
-                      overwrite=overwrite, pano_size=pano_size, progress=True)
+                      overwrite=overwrite, tilt_deg=tilt_deg, pano_size=pano_size, progress=True)
     click.echo(f"{len(folders)} cases in {out}")
 
 
