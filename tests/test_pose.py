@@ -206,3 +206,40 @@ def test_gross_outlier_bins_do_not_move_the_fix(world):
     fix = locate(prof, db=st, dem=dem, config=CFG)
     assert np.hypot(fix.x - tx, fix.y - ty) < 3.0
     assert abs(_ang(fix.heading_deg - th)) < 0.3
+
+
+def test_residual_correlation_length_of_white_and_ar1_noise():
+    """Integrated autocorrelation length against closed forms: 1 for white noise and
+    (1 + rho) / (1 - rho) for an AR(1) sequence."""
+    from skyfix.pose import residual_correlation_bins
+
+    rng = np.random.default_rng(0)
+    white = rng.normal(0, 0.1, 3600)
+    assert residual_correlation_bins(white) == pytest.approx(1.0, abs=0.15)
+    rho = 0.8
+    e = rng.normal(0, 1, 20000)
+    ar = np.empty_like(e)
+    ar[0] = e[0]
+    for i in range(1, e.size):
+        ar[i] = rho * ar[i - 1] + e[i]
+    # truncated where rho^k < 0.05: sum_{k<=13} 2 rho^k = 7.9, the infinite sum 8
+    assert residual_correlation_bins(ar, max_lag=200) == pytest.approx(1 + 2 * sum(
+        rho ** k for k in range(1, 14)), rel=0.1)
+    gaps = white.copy()
+    gaps[100:400] = np.nan
+    assert residual_correlation_bins(gaps) == pytest.approx(1.0, abs=0.15)
+
+
+def test_clipped_cost_counts_outliers_at_the_clip():
+    """A query equal to a profile plus an offset, with 30 of 360 bins 10 deg off (a rock):
+    residuals are 0 on the inliers, so the cost is exactly 30/360 clip^2 at the right shift."""
+    from skyfix.pose import clipped_costs
+
+    rng = np.random.default_rng(1)
+    az = np.arange(360)
+    p = np.stack([5 + 3 * np.sin(np.radians(az) * k) + rng.normal(0, 0.5) for k in (1, 2, 3)])
+    q = np.roll(p[1], -17) + 1.5  # q[j] = p[1][j + 17]
+    q[40:70] += 10.0
+    cost = clipped_costs(p, q, np.array([17.0, 17.0, 17.0]), remove_tilt=True, clip_deg=0.5)
+    assert cost[1] == pytest.approx(30 / 360 * 0.25, abs=1e-9)
+    assert cost[0] > 5 * cost[1] and cost[2] > 5 * cost[1]

@@ -388,6 +388,34 @@ def outlier_bins(q, p_world, shift_bins, remove_tilt=True, floor_deg=0.5, k_sigm
     return out
 
 
+def clipped_costs(p, q, shift_bins, remove_tilt=True, clip_deg=0.5):
+    """Per point, the mean of ``min(r^2, clip_deg^2)`` [deg^2] over the query's observed bins,
+    r the residual at the point's shift after removing the offset (and tilt harmonic) fitted by
+    least squares to the bins within ``clip_deg`` of the median residual.
+
+    p : (N, n) [deg] world skylines; q : (n,) [deg] query (NaN unobserved); shift_bins : (N,)
+    (``q[j] ~ p[j + shift]``)."""
+    from .match import _basis
+
+    p = np.asarray(p, np.float64)
+    q = np.asarray(q, np.float64)
+    N, n = p.shape
+    obs = np.flatnonzero(np.isfinite(q))
+    grid = np.arange(n + 1, dtype=np.float64)
+    pred = np.empty((N, obs.size))
+    for k in range(N):
+        pred[k] = np.interp((obs + float(shift_bins[k])) % n, grid, np.append(p[k], p[k, 0]))
+    r = q[obs][None, :] - pred
+    r -= np.median(r, axis=1, keepdims=True)
+    u = _basis(n, remove_tilt)[obs]
+    w = (np.abs(r) < clip_deg).astype(np.float64)
+    for k in range(N):  # one weighted refit on the inliers: offset and tilt harmonic
+        uw = u * w[k][:, None]
+        coef, *_ = np.linalg.lstsq(uw.T @ u, uw.T @ r[k], rcond=None)
+        r[k] -= u @ coef
+    return np.mean(np.minimum(r * r, clip_deg * clip_deg), axis=1)
+
+
 def robust_scores(p, q, *, remove_tilt=True, workers=2, rounds=2):
     """Shift search scores of skylines ``p`` (N, n) [deg] against ``q`` with outlier bins dropped.
 
@@ -402,7 +430,10 @@ def robust_scores(p, q, *, remove_tilt=True, workers=2, rounds=2):
     qm = q
     sc, sh = score_profiles(p, prepare_query(qm, remove_tilt, min_observed=8), workers)
     for _ in range(rounds):
-        i = int(np.argmin(sc))
+        # The reference point whose residuals name the outliers: the lowest clipped cost, not
+        # the lowest sum of squares -- near rocks covering 10 % of the view pull the plain
+        # optimum tens of metres off, and its residuals then flag the wrong bins.
+        i = int(np.argmin(clipped_costs(p, q, sh, remove_tilt)))
         bad = outlier_bins(q, p[i], sh[i], remove_tilt)
         # Never drop so many bins that the position information goes with them.
         if not bad.any() or n_obs - bad.sum() < max(20, n_obs // 2):
@@ -465,8 +496,37 @@ def _refine(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_tilt,
     return (*best, local)
 
 
-def _position_sigma(local, best_score, m_obs, noise_deg):
-    """1-sigma position [m] from a quadratic fit of the score surface on the finest grid."""
+def residual_correlation_bins(resid, max_lag=60, floor=0.05):
+    """Integrated autocorrelation length [bins] of a residual profile (NaN = unobserved):
+    ``1 + 2 sum_k rho_k`` over lags until ``rho_k`` drops below ``floor``, at least 1.
+
+    Detection errors are smooth along the skyline (a sub-pixel bias over a ridge, a frame's
+    pan error), so neighbouring bins do not bring independent information; the number of
+    independent bins is the observed count divided by this length."""
+    r = np.asarray(resid, np.float64)
+    ok = np.isfinite(r)
+    if ok.sum() < 10:
+        return 1.0
+    r = np.where(ok, r - np.mean(r[ok]), 0.0)
+    var = float(np.mean(r[ok] ** 2))
+    if var <= 0:
+        return 1.0
+    tau = 1.0
+    n = r.size
+    for k in range(1, min(max_lag, n // 2) + 1):
+        both = ok & np.roll(ok, -k)  # profiles are circular
+        if both.sum() < 10:
+            break
+        rho = float(np.mean((r * np.roll(r, -k))[both])) / var
+        if rho < floor:
+            break
+        tau += 2.0 * rho
+    return tau
+
+
+def _position_sigma(local, best_score, m_obs, noise_deg, corr_bins=1.0):
+    """1-sigma position [m] from a quadratic fit of the score surface on the finest grid, with
+    ``m_obs / corr_bins`` independent bins (:func:`residual_correlation_bins`)."""
     gx, gy, sc, step = local
     if gx.size < 6:
         return float(step)
@@ -480,7 +540,7 @@ def _position_sigma(local, best_score, m_obs, noise_deg):
         hess = np.array([[2 * c[3], c[4]], [c[4], 2 * c[5]]])
         # score = mean sq residual; NLL = m * score / (2 s^2) -> cov = 2 s^2 / m * H^-1.
         s2 = max(best_score, noise_deg ** 2)
-        cov = 2 * s2 / m_obs * np.linalg.inv(hess)
+        cov = 2 * s2 * max(corr_bins, 1.0) / m_obs * np.linalg.inv(hess)
         ev = np.linalg.eigvalsh(cov)
         if np.any(ev <= 0) or not np.all(np.isfinite(ev)):
             return float(4 * step)
@@ -644,8 +704,13 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         other = min([d["cost"] for d in results[1:] if far(d["x"], d["y"])] +
                     [c[2] for c in cands[len(results):] if far(c[0], c[1])] or [np.inf])
         best_s = best["cost"]
-        psig = _position_sigma(best["local"], best["score"], int(obs.sum()), noise)
         att = best["att"]
+        world = render_horizons(dem, [best["x"]], [best["y"]], camera_height_m=camera_height_m,
+                                planet=planet, azimuth_bins=config.render_bins).elevation_deg[0]
+        resid = q - body_profile(world, att.yaw_deg, att.pitch_deg, att.roll_deg, n_bins=n,
+                                 prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+        psig = _position_sigma(best["local"], best["score"], int(obs.sum()), noise,
+                               corr_bins=residual_correlation_bins(resid))
         fx, fy, heading, pitch, roll = best["x"], best["y"], att.yaw_deg, att.pitch_deg, att.roll_deg
         hsig, rms = att.yaw_sigma_deg, att.robust_rms_deg
         tilt = math.hypot(pitch - prior_pitch_deg, roll - prior_roll_deg)
