@@ -14,6 +14,7 @@ Scenarios (``design.md``):
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import resource
@@ -113,6 +114,7 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
             res.fix_x, res.fix_y = x, y
             res.fix_heading_deg, res.fix_pitch_deg, res.fix_roll_deg = hf.heading_deg, hf.pitch_deg, hf.roll_deg
             res.heading_sigma_deg, res.confidence, res.score = hf.heading_sigma_deg, hf.confidence, hf.score
+            extra["features"] = dict(hf.features)
         else:
             kw = {}
             if cfg.scenario == 2:
@@ -128,6 +130,7 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
             res.position_sigma_m, res.heading_sigma_deg = fix.position_sigma_m, fix.heading_sigma_deg
             res.confidence, res.score = fix.confidence, fix.score
             extra["fix"] = fix
+            extra["features"] = dict(fix.features)
         res.time_locate_s = time.perf_counter() - t0
     except SkyfixError as e:
         res.status = f"{type(e).__name__}: {e}"
@@ -171,6 +174,7 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
                                  f"the cases use {cfg.camera_height_m} m")
         area = area or db_area(db, margin_m=2 * db.spacing_m)
     results: list[CaseResult] = []
+    features: list[dict] = []
     examples: list[tuple[CaseResult, dict, Path]] = []
     rng = np.random.default_rng(cfg.seed + 1000 * cfg.scenario)
     for s_i, set_name in enumerate(cfg.sets):
@@ -182,6 +186,8 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
             res, extra = run_case(Path(cdir), set_name, cfg, dem, db, rng, k)
             res.time_simulate_s = t_sim
             results.append(res)
+            if "features" in extra:
+                features.append(calibration_row(res, extra["features"], dem))
             if k < 1:
                 examples.append((res, extra, Path(cdir)))
             if progress:
@@ -190,7 +196,28 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
                          f"prior off {res.prior_offset_m:.0f} m, ")
                       + f"heading err {res.heading_error_deg:.2f} deg, conf {res.confidence:.2f}"
                       + ("" if res.status == "ok" else f" [{res.status[:60]}]"), flush=True)
+    write_jsonl(out / "calibration.jsonl", features)
     return write_outputs(out, results, examples, cfg, dem, command=command)
+
+
+CALIBRATION_KEYS = {1: "locate", 2: "locate_prior", 3: "heading"}
+
+
+def calibration_row(res: CaseResult, features: dict, dem) -> dict:
+    """One line of ``calibration.jsonl``: the localiser's confidence features with the truth's
+    verdict, in the form ``scripts/calibrate_confidence.py fit --cases`` reads."""
+    err = res.heading_error_deg if res.scenario == 3 else res.position_error_m
+    return {"scenario": CALIBRATION_KEYS[res.scenario], "dem": Path(dem.source).name, "set": res.set,
+            "case": res.case, "source": "evaluate", "err": float(err), "correct": bool(res.correct),
+            "confidence": float(res.confidence), **{k: float(v) for k, v in features.items()}}
+
+
+def write_jsonl(path: Path, rows: list[dict]) -> Path:
+    from ._io import atomic_path
+
+    with atomic_path(path, suffix=".jsonl") as tmp:
+        Path(tmp).write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return path
 
 
 def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command: str) -> Path:
