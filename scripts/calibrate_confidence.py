@@ -21,6 +21,13 @@ prints the 5-fold cross-validated reliability table and writes ``src/skyfix/mode
     PYTHONPATH=src python scripts/calibrate_confidence.py simulate --dem sierra_nevada_30m.tif \\
         --store /tmp/pc/sierra_1500_5m.zarr --scenario locate --n 40 --cases /tmp/pc/cases.jsonl
     PYTHONPATH=src python scripts/calibrate_confidence.py fit --cases /tmp/pc/cases.jsonl
+
+The shipped models are fitted on ``scripts/calibration_cases/*.jsonl``: the synthetic-profile
+cases above (``synthetic_*``) and whole-pipeline cases (``evaluate_*``: simulated images, the
+``dp`` detector, projection, localisation) that ``skyfix evaluate`` writes to
+``calibration.jsonl`` (seeds 21-26, never used by the example report)::
+
+    PYTHONPATH=src python scripts/calibrate_confidence.py fit --cases scripts/calibration_cases/*.jsonl
 """
 
 from __future__ import annotations
