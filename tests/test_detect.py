@@ -358,3 +358,22 @@ def test_bayes_model_init_runs_and_checks_its_option():
     assert np.isfinite(sk.rows).mean() >= 0.9  # a flat skyline: found in (nearly) every column
     with pytest.raises(ParameterError, match="init"):
         detect_skyline(img, method="bayes", init="guess")
+
+
+def test_subpixel_row_is_the_edge_position():
+    """An antialiased edge at known fractional rows (each pixel the area-weighted mix of sky
+    and ground, pixel centres at integer rows): the detected row is the edge itself, within a
+    tenth of a pixel -- not the step peak half a pixel below it."""
+    rng = np.random.default_rng(5)
+    H, W = 200, 400
+    c = np.arange(W)
+    edge = 80.3 + 12 * np.sin(c / 45.0)
+    v = np.arange(H)[:, None]
+    ground_frac = np.clip(v + 0.5 - edge[None, :], 0.0, 1.0)  # pixel v spans [v - 0.5, v + 0.5]
+    ground = 90 + 30 * np.sin(v / 3.0 + c[None, :] / 5.0)  # textured, so the sky is the smooth side
+    g = 200 * (1 - ground_frac) + ground * ground_frac + rng.normal(0, 0.5, (H, W))
+    img = np.stack([g, g * 0.9, g * 0.8], -1).clip(1, 255).astype(np.uint8)
+    sk = detect_skyline(img)
+    err = sk.rows - edge
+    assert np.isfinite(err).mean() > 0.98
+    assert abs(np.nanmedian(err)) < 0.1 and np.nanmedian(np.abs(err)) < 0.15
