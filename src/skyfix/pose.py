@@ -362,13 +362,18 @@ def _render_points(dem, xs, ys, *, camera_height_m, planet, n_bins):
     return np.roll(p, k // 2, axis=1).reshape(p.shape[0], n_bins, k).mean(axis=2).astype(np.float32)
 
 
-def outlier_bins(q, p_world, shift_bins, remove_tilt=True, floor_deg=0.5, k_sigma=3.5):
+def outlier_bins(q, p_world, shift_bins, remove_tilt=True, floor_deg=0.5, k_sigma=3.5,
+                 above_floor_deg=0.15, above_k_sigma=2.5):
     """Observed bins of the query [deg] that a prediction cannot explain (a near rock, a glint).
 
     p_world : (n,) [deg] world skyline; shift_bins : best shift [bins] (``q[j] ~ p[j + shift]``).
     The residual, after removing the offset (and tilt harmonic), is compared with
     ``max(k_sigma * 1.4826 MAD, floor_deg)``: Gaussian detection noise stays in, gross errors
-    (>= 1 deg) go out. Returns a bool (n,) mask, True = outlier.
+    (>= 1 deg) go out. Bins *above* the prediction go out sooner, beyond
+    ``max(above_k_sigma * 1.4826 MAD, above_floor_deg)``: something near the camera (a rock,
+    the rover's own hardware) can only raise the skyline, and small rocks a few tenths of a
+    degree high otherwise stayed in and pulled the position metres off.
+    Returns a bool (n,) mask, True = outlier.
     """
     from .match import _basis
 
@@ -382,9 +387,11 @@ def outlier_bins(q, p_world, shift_bins, remove_tilt=True, floor_deg=0.5, k_sigm
     r = q[obs] - pred[obs]
     coef, *_ = np.linalg.lstsq(u, r, rcond=None)
     r = r - u @ coef
-    thr = max(k_sigma * 1.4826 * float(np.median(np.abs(r - np.median(r)))), floor_deg)
+    mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    thr = max(k_sigma * mad, floor_deg)
+    thr_above = min(max(above_k_sigma * mad, above_floor_deg), thr)
     out = np.zeros(n, bool)
-    out[np.flatnonzero(obs)[np.abs(r) > thr]] = True
+    out[np.flatnonzero(obs)[(r > thr_above) | (r < -thr)]] = True
     return out
 
 
