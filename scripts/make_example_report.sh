@@ -6,7 +6,7 @@ set -euo pipefail
 DEM=../shared/data/dem/sierra_nevada_30m.tif
 DB=${1:-../skyfix-data/sierra_7km_5m.zarr}
 OUT=docs/example-report
-CASES=${CASES:-4}
+CASES=${CASES:-10}
 if [ ! -f "$DB/zarr.json" ] || ! skyfix info "$DB" | grep -q "(complete)"; then
   skyfix build-db "$DEM" --out "$DB" --bounds -2020450 238257 -2013450 245257 --spacing-m 5
 fi
