@@ -242,20 +242,32 @@ def _hash01(ix, iy, seed):
 
 
 @numba.njit(cache=True, nogil=True)
-def _value_noise(x, y, seed):
+def _lattice(x, y, seed):
+    """Cell offsets (fx, fy) of (x, y) and the hashed values at the cell's four corners."""
     ix = math.floor(x)
     iy = math.floor(y)
-    fx = x - ix
-    fy = y - iy
-    sx = fx * fx * (3 - 2 * fx)
-    sy = fy * fy * (3 - 2 * fy)
     i = np.int64(ix)
     j = np.int64(iy)
-    a = _hash01(i, j, seed)
-    b = _hash01(i + 1, j, seed)
-    c = _hash01(i, j + 1, seed)
-    d = _hash01(i + 1, j + 1, seed)
+    return (x - ix, y - iy, _hash01(i, j, seed), _hash01(i + 1, j, seed), _hash01(i, j + 1, seed),
+            _hash01(i + 1, j + 1, seed))
+
+
+@numba.njit(cache=True, nogil=True)
+def _value_noise(x, y, seed):
+    fx, fy, a, b, c, d = _lattice(x, y, seed)
+    sx = fx * fx * (3 - 2 * fx)
+    sy = fy * fy * (3 - 2 * fy)
     return (a * (1 - sx) + b * sx) * (1 - sy) + (c * (1 - sx) + d * sx) * sy
+
+
+@numba.njit(cache=True, nogil=True)
+def _value_noise_grad(x, y, seed):
+    """Gradient of :func:`_value_noise` with respect to (x, y) [per noise cell]."""
+    fx, fy, a, b, c, d = _lattice(x, y, seed)
+    sx = fx * fx * (3 - 2 * fx)
+    sy = fy * fy * (3 - 2 * fy)
+    return (((b - a) * (1 - sy) + (d - c) * sy) * 6.0 * fx * (1 - fx),
+            ((c - a) * (1 - sx) + (d - b) * sx) * 6.0 * fy * (1 - fy))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -301,25 +313,10 @@ def _fbm_slope(x, y, seed, wavelength, octaves, footprint, slope, decay):
     for k in range(octaves):
         fade = min(max((w / max(footprint, 1e-9) - 1.0) / 3.0, 0.0), 1.0)
         if fade > 0.0:
-            u = x / w
-            v = y / w
-            ix = math.floor(u)
-            iy = math.floor(v)
-            fx = u - ix
-            fy = v - iy
-            sx = fx * fx * (3 - 2 * fx)
-            sy = fy * fy * (3 - 2 * fy)
-            dsx = 6.0 * fx * (1 - fx)
-            dsy = 6.0 * fy * (1 - fy)
-            i = np.int64(ix)
-            j = np.int64(iy)
-            h00 = _hash01(i, j, seed + 50 + k)
-            h10 = _hash01(i + 1, j, seed + 50 + k)
-            h01 = _hash01(i, j + 1, seed + 50 + k)
-            h11 = _hash01(i + 1, j + 1, seed + 50 + k)
             # height = a w (value noise - 0.5): its gradient is a times the noise's unit derivative
-            gx += fade * a * ((h10 - h00) * (1 - sy) + (h11 - h01) * sy) * dsx
-            gy += fade * a * ((h01 - h00) * (1 - sx) + (h11 - h10) * sx) * dsy
+            nx, ny = _value_noise_grad(x / w, y / w, seed + 50 + k)
+            gx += fade * a * nx
+            gy += fade * a * ny
         w *= 0.5
         a *= decay
     return gx, gy
