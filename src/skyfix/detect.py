@@ -447,6 +447,25 @@ def _noise_level(gray_s, valid_s, block=15):
 
 # --- the dp detector -----------------------------------------------------------------------------
 
+def _texture_region(gray_s, valid_s, opt: DpOptions):
+    """Texture region term per working pixel: log of the local texture over the sky threshold,
+    clipped to [-1, 1]; < 0 looks like sky, > 0 like terrain."""
+    import cv2
+
+    # sky-likeness from texture of the un-equalised grey (CLAHE would lift the sky's noise)
+    tex = _texture(cv2.GaussianBlur(gray_s, (3, 3), 0.8), valid_s, 3).astype(np.float64)
+    tv = tex[valid_s] if valid_s.any() else np.ones(1)
+    # the median alone collapses to ~0 when over half the image is smooth (a big clean sky,
+    # smooth rendered terrain), and then nothing looks like sky: floor it by the textured part
+    med = max(float(np.median(tv)), 0.25 * float(np.percentile(tv, 90)))
+    # a pixel whose texture is no more than the sensor noise's is sky-like whatever the rest
+    # of the image does: in a noisy frame over smooth ground 0.35 median is below the noise
+    thr = max(opt.texture_ratio * med, opt.noise_ratio * _noise_level(gray_s, valid_s))
+    # log ratio to the sky threshold: < 0 looks like sky, > 0 like terrain; clipped so a few
+    # wild pixels cannot dominate a column
+    return np.clip(np.log((tex + 0.05 * med + 1e-6) / (thr + 1e-6)), -1.0, 1.0)
+
+
 def _dp_costs(gray_s, valid_s, opt: DpOptions, d=None):
     import cv2
 
@@ -468,19 +487,7 @@ def _dp_costs(gray_s, valid_s, opt: DpOptions, d=None):
     E = np.exp(-dist / 1.5).astype(np.float64)
 
     if d is None:
-        # sky-likeness from texture of the un-equalised grey (CLAHE would lift the sky's noise)
-        tex = _texture(cv2.GaussianBlur(gray_s, (3, 3), 0.8), valid_s, 3).astype(np.float64)
-        tv = tex[valid_s] if valid_s.any() else np.ones(1)
-        # the median alone collapses to ~0 when over half the image is smooth (a big clean sky,
-        # smooth rendered terrain), and then nothing looks like sky: floor it by the textured part
-        med = max(float(np.median(tv)), 0.25 * float(np.percentile(tv, 90)))
-        # a pixel whose texture is no more than the sensor noise's is sky-like whatever the rest
-        # of the image does: in a noisy frame over smooth ground 0.35 median is below the noise
-        thr = max(opt.texture_ratio * med, opt.noise_ratio * _noise_level(gray_s, valid_s))
-        # log ratio to the sky threshold: < 0 looks like sky, > 0 like terrain; clipped so a few
-        # wild pixels cannot dominate a column
-        d = np.clip(np.log((tex + 0.05 * med + 1e-6) / (thr + 1e-6)),
-                    -1.0, 1.0)
+        d = _texture_region(gray_s, valid_s, opt)
     P = _column_prefix(d, valid_s)  # (h + 1, w)
 
     rows = np.arange(h, dtype=np.float64)[:, None]
@@ -671,7 +678,7 @@ def _detect_dp(img, valid, opt: DpOptions, model=None):
         d = -np.clip(_resample_to(lo, fm, f, gray_s.shape), -opt.llr_clip, opt.llr_clip)
         d = d.astype(np.float64)
         if region == "both":
-            d = opt.w_model * d + _dp_costs(gray_s, valid_s, opt)[4]
+            d = opt.w_model * d + _texture_region(gray_s, valid_s, opt)
     elif region != "texture":
         raise ParameterError(f"unknown region term {opt.region!r}: choose 'model' or 'texture'")
     enter, vert, G, none, d = _dp_costs(gray_s, valid_s, opt, d)
