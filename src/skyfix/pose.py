@@ -574,7 +574,7 @@ def _refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, pla
     The attitude comes first: with 10 deg of pitch/roll the tilt-harmonic removal of the shift
     search is only approximate and biased the fine position by 5-15 m; levelling the query with
     the attitude fitted at the candidate (far horizon: insensitive to metres) removes that bias.
-    Returns (x, y, score, local, attitude)."""
+    Returns (x, y, score, local, attitude, clipped cost, residual profile [deg])."""
     from .horizon import render_horizons
 
     n = q.size
@@ -608,20 +608,24 @@ def _refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, pla
         fine = step0 / 4.0 ** (config.levels - 1)
         x, y, s, hd, local = _refine(dem, ql, x, y, fine, 1, **kw)
         att = fit(world_at(x, y), att.yaw_deg, att.pitch_deg, att.roll_deg, (0.0,))
-    cost = robust_cost(q, world_at(x, y), att, noise, prior_pitch_deg=prior_pitch_deg,
-                       prior_roll_deg=prior_roll_deg)
-    return x, y, s, local, att, cost
+    resid = residual_profile(q, world_at(x, y), att, prior_pitch_deg=prior_pitch_deg,
+                             prior_roll_deg=prior_roll_deg)
+    return x, y, s, local, att, robust_cost(resid, noise), resid
 
 
-def robust_cost(q, world_el_deg, att, noise_deg, *, prior_pitch_deg=0.0, prior_roll_deg=0.0):
-    """Clipped mean squared residual [deg^2] of the query against the world horizon seen with
-    attitude ``att``: each bin counts at most ``(max(3 noise, 0.5 deg))^2``, so a few gross
-    bins (a near rock) cannot out-vote the rest when candidates are ranked."""
-    q = np.asarray(q, np.float64)
-    obs = np.isfinite(q)
-    pred = body_profile(world_el_deg, att.yaw_deg, att.pitch_deg, att.roll_deg, n_bins=q.size,
-                        prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
-    r = q[obs] - pred[obs]
+def residual_profile(q, world_el_deg, att, *, prior_pitch_deg=0.0, prior_roll_deg=0.0):
+    """Query minus the world horizon seen with attitude ``att`` [deg] (NaN where unobserved)."""
+    pred = body_profile(world_el_deg, att.yaw_deg, att.pitch_deg, att.roll_deg,
+                        n_bins=np.size(q), prior_pitch_deg=prior_pitch_deg,
+                        prior_roll_deg=prior_roll_deg)
+    return np.asarray(q, np.float64) - pred
+
+
+def robust_cost(resid, noise_deg):
+    """Clipped mean squared residual [deg^2] of a :func:`residual_profile`, offset removed:
+    each bin counts at most ``(max(3 noise, 0.5 deg))^2``, so a few gross bins (a near rock)
+    cannot out-vote the rest when candidates are ranked."""
+    r = resid[np.isfinite(resid)]
     r = r - np.median(r)
     c = max(3.0 * noise_deg, 0.5)
     return float(np.mean(np.minimum(r * r, c * c)))
@@ -693,14 +697,12 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     relief = float(np.nanstd(q))
     results = []
     if dem is not None:
-        from .horizon import render_horizons
-
         for cx, cy, cs, ch in cands[: config.refine_candidates]:
-            x, y, s, local, att, cost = _refine_candidate(
+            x, y, s, local, att, cost, resid = _refine_candidate(
                 dem, q, cx, cy, ch, step0, config, camera_height_m=camera_height_m, planet=planet,
                 prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg, noise=noise)
             results.append(dict(x=x, y=y, score=s, heading=att.yaw_deg, att=att, local=local,
-                                db_score=cs, cost=cost))
+                                db_score=cs, cost=cost, resid=resid))
         # Ranked by the clipped cost: plain rms let outlier bins pick the wrong basin.
         results.sort(key=lambda d: d["cost"])
         best = results[0]
@@ -712,12 +714,8 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
                     [c[2] for c in cands[len(results):] if far(c[0], c[1])] or [np.inf])
         best_s = best["cost"]
         att = best["att"]
-        world = render_horizons(dem, [best["x"]], [best["y"]], camera_height_m=camera_height_m,
-                                planet=planet, azimuth_bins=config.render_bins).elevation_deg[0]
-        resid = q - body_profile(world, att.yaw_deg, att.pitch_deg, att.roll_deg, n_bins=n,
-                                 prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
         psig = _position_sigma(best["local"], best["score"], int(obs.sum()), noise,
-                               corr_bins=residual_correlation_bins(resid))
+                               corr_bins=residual_correlation_bins(best["resid"]))
         fx, fy, heading, pitch, roll = best["x"], best["y"], att.yaw_deg, att.pitch_deg, att.roll_deg
         hsig, rms = att.yaw_sigma_deg, att.robust_rms_deg
         tilt = math.hypot(pitch - prior_pitch_deg, roll - prior_roll_deg)
