@@ -67,6 +67,14 @@ def write_json(path, obj, *, indent: int | None = 1) -> Path:
     return path
 
 
+def write_jsonl(path, rows) -> Path:
+    """Atomically write ``rows`` to ``path`` as JSON lines (NaN and infinities as ``null``)."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text("".join(to_json(r) + "\n" for r in rows))
+    return path
+
+
 def check_can_write(path, overwrite: bool) -> Path:
     """Refuse to replace an existing ``path`` unless ``overwrite``."""
     path = Path(path)

@@ -14,7 +14,6 @@ Scenarios (``design.md``):
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import resource
@@ -196,6 +195,8 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
                          f"prior off {res.prior_offset_m:.0f} m, ")
                       + f"heading err {res.heading_error_deg:.2f} deg, conf {res.confidence:.2f}"
                       + ("" if res.status == "ok" else f" [{res.status[:60]}]"), flush=True)
+    from ._io import write_jsonl
+
     write_jsonl(out / "calibration.jsonl", features)
     return write_outputs(out, results, examples, cfg, dem, command=command)
 
@@ -210,14 +211,6 @@ def calibration_row(res: CaseResult, features: dict, dem) -> dict:
     return {"scenario": CALIBRATION_KEYS[res.scenario], "dem": Path(dem.source).name, "set": res.set,
             "case": res.case, "source": "evaluate", "err": float(err), "correct": bool(res.correct),
             "confidence": float(res.confidence), **{k: float(v) for k, v in features.items()}}
-
-
-def write_jsonl(path: Path, rows: list[dict]) -> Path:
-    from ._io import atomic_path
-
-    with atomic_path(path, suffix=".jsonl") as tmp:
-        Path(tmp).write_text("".join(json.dumps(r) + "\n" for r in rows))
-    return path
 
 
 def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command: str) -> Path:
