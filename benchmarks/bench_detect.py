@@ -95,23 +95,16 @@ def loo_models(folder, names, sim_dirs=(), sim_max_frames=10):
     recipe of ``scripts/train_sky_model.py``: each image and its sky-dominant crop, plus the
     simulated frames of ``sim_dirs`` (never held out: they are not dev images)."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-    from train_sky_model import read_labelled, read_simulated, sky_dominant_crop
+    from train_sky_model import read_labelled, simulated_frames, training_views
 
     from skyfix.skymodel import fit_sky_model, training_pixels
 
     def views(img, sky):
-        out = [training_pixels(img, sky)]
-        crop = sky_dominant_crop(img, sky)
-        if crop is not None:
-            out.append(training_pixels(*crop))
-        return out
+        return [training_pixels(im, sk) for _, im, sk in training_views(img, sky)]
 
     parts = {name: views(img, sky) for name, img, sky in read_labelled(folder)}
-    shared = []
-    for k, d in enumerate(sim_dirs):
-        share = sim_max_frames // len(sim_dirs) + (k < sim_max_frames % len(sim_dirs))
-        for _, img, sky in read_simulated(d, share):
-            shared += views(img, sky)
+    shared = [v for _, img, sky in simulated_frames(list(sim_dirs), sim_max_frames)
+              for v in views(img, sky)]
     models = {}
     for name in names:
         train = shared + [v for n, p in parts.items() if n != name for v in p]

@@ -102,6 +102,24 @@ def sky_dominant_crop(img, sky, sky_share=0.7):
     return img[:r1].copy(), sky[:r1].copy()
 
 
+def simulated_frames(folders, max_frames):
+    """:func:`read_simulated` over several folders, ``max_frames`` in all, shared evenly."""
+    for k, folder in enumerate(folders):
+        share = max_frames // len(folders) + (k < max_frames % len(folders))
+        yield from read_simulated(folder, share)
+
+
+def training_views(img, sky, sky_crops=True):
+    """The (tag, image, sky mask) views one labelled image contributes: itself and, with
+    ``sky_crops``, its :func:`sky_dominant_crop`."""
+    views = [("", img, sky)]
+    if sky_crops:
+        crop = sky_dominant_crop(img, sky)
+        if crop is not None:
+            views.append((" (sky-dominant crop)", *crop))
+    return views
+
+
 def main(argv=None):
     from skyfix.skymodel import fit_sky_model, training_pixels
 
@@ -122,19 +140,11 @@ def main(argv=None):
         raise SystemExit(f"{out} exists: pass --overwrite to replace it")
     t0 = time.perf_counter()
     parts = []
-    sims = []
-    for k, folder in enumerate(args.sim):
-        share = args.sim_max_frames // len(args.sim) + (k < args.sim_max_frames % len(args.sim))
-        sims.append(read_simulated(folder, share))
     import itertools
 
-    for name, img, sky in itertools.chain(read_labelled(args.data), *sims):
-        views = [("", img, sky)]
-        if args.sky_crops:
-            crop = sky_dominant_crop(img, sky)
-            if crop is not None:
-                views.append((" (sky-dominant crop)", *crop))
-        for tag, im, sk in views:
+    for name, img, sky in itertools.chain(read_labelled(args.data),
+                                          simulated_frames(args.sim, args.sim_max_frames)):
+        for tag, im, sk in training_views(img, sky, args.sky_crops):
             X, y = training_pixels(im, sk)
             parts.append((X, y))
             print(f"{name}{tag}: {len(y)} pixels, {100 * y.mean():.1f} % sky", file=sys.stderr)
