@@ -462,6 +462,7 @@ def test_cli_simulate(dem_file, tmp_path):
     (["--x", "900", "--y", "800", "--conditions", "smoke"], "unknown condition"),
     (["--x", "90000", "--y", "800"], "outside the DEM"),
     (["--x", "900", "--y", "800", "--frames", "0"], "at least one frame"),
+    (["--x", "900", "--y", "800", "--tilt-deg", "120"], "mast tilt must be within +-90 deg"),
 ])
 def test_cli_simulate_errors(dem_file, tmp_path, args, msg):
     r = CliRunner().invoke(cli, ["simulate", str(dem_file), "--yaw-deg", "0", *args, "--out",

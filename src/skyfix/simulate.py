@@ -594,6 +594,8 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
             raise ParameterError(f"{name} must be a finite angle in degrees, got {v}")
     if abs(truth.pitch_deg) > 60 or abs(truth.roll_deg) > 60:
         raise ParameterError("pitch and roll must be within +-60 deg for a rover on the ground")
+    if not (np.isfinite(tilt_deg) and abs(tilt_deg) <= 90):
+        raise ParameterError(f"mast tilt must be within +-90 deg (up positive), got {tilt_deg}")
     pl = get_planet(planet)
     planet_key = pl.name if pl.name in ("earth", "mars") else "earth"
     cond = _conditions(conditions)
