@@ -426,7 +426,10 @@ def shade(cast: CastResult, scene: Scene, *, focal_px: float, rng: np.random.Gen
              scene.texture_seed + 101, 3.0, 5, tex2)
     mix = np.clip((tex - 0.35) * 2.0, 0, 1)[..., None]
     albedo = ground_a * (1 - mix) + ground_b * mix
-    albedo = albedo * (0.75 + 0.5 * tex2[..., None])
+    # Metre-scale albedo (stones, soil, plants) varies by about +-20 % (tex2's std is 0.12). It
+    # is multiplicative, so it survives in shadow, where the roughness below gives no texture:
+    # at +-6 % a slope in its own shadow rendered smooth and read as sky.
+    albedo = albedo * np.clip(1.0 + 1.6 * (tex2[..., None] - 0.5), 0.4, 1.6)
     rock = kind == 2
     if rock.any():
         rock_col = np.array([0.30, 0.24, 0.20]) if scene.planet == "mars" else np.array([0.33, 0.32, 0.30])
@@ -438,7 +441,9 @@ def shade(cast: CastResult, scene: Scene, *, focal_px: float, rng: np.random.Gen
     _roughen_normals(pts[..., 0].copy(), pts[..., 1].copy(), footprint, kind == 1,
                      scene.texture_seed, normal)
     ndl = np.clip(normal @ sun, 0, None)
-    light = 0.25 + 1.0 * ndl
+    # Sky light reaches a facet in proportion to the sky it sees, (1 + n_z) / 2 for a uniform
+    # sky: the rough ground keeps some relief in shadow.
+    light = 0.25 * 0.5 * (1.0 + normal[..., 2]) + 1.0 * ndl
     surf = albedo * light[..., None]
 
     sky = _sky(d, scene, horizon, zenith)
