@@ -61,12 +61,13 @@ def test_step_skyline(method):
     img, truth = synth(rows)
     sk = detect_skyline(img, method=method)
     s = _score(sk, truth)
-    assert s["false_rate"] == 0 and s["missed_rate"] <= 0.01
-    # measured (dp): 0.938, a 4-5 px excursion into a smooth patch of the synthetic gravel and
-    # the cliff's foot cut over 9 columns (the model with sky-dominant crops likes this
-    # grey-brown sky less than the earlier one, which scored 0.95 here and 1.18 px mean error)
-    assert s["within_3px"] >= 0.93
-    assert s["mean_abs_err_px"] < 1.5  # measured 0.75 (dp), the excursions included
+    # dp cuts the cliff's foot diagonally over 9 columns (rows 10-30 px off); their confidence
+    # is ~0, so they are reported as unknown rather than wrong: missed 5 %
+    assert s["false_rate"] == 0 and s["missed_rate"] <= (0.06 if method == "dp" else 0.01)
+    assert s["within_3px"] >= 0.95  # measured 0.974 (dp)
+    assert s["mean_abs_err_px"] < 1.0  # measured 0.72 (dp)
+    if method == "dp":
+        assert s["within_10px"] >= 0.99  # measured 0.996
     assert sk.confidence.shape == (240,) and np.all((sk.confidence >= 0) & (sk.confidence <= 1))
 
 
@@ -78,13 +79,16 @@ def test_steep_slope(method):
     img, truth = synth(rows, height=180, seed=1)
     sk = detect_skyline(img, method=method)
     s = _score(sk, truth)
-    assert s["false_rate"] == 0 and s["missed_rate"] <= 0.02
-    assert s["within_3px"] >= (0.9 if method == "dp" else 0.85)
+    # dp: the flank's foot (rows 8-13 px off at confidence < 0.15) is reported as unknown
+    assert s["false_rate"] == 0 and s["missed_rate"] <= (0.08 if method == "dp" else 0.02)
+    assert s["within_3px"] >= (0.95 if method == "dp" else 0.85)  # measured 0.96 (dp)
+    if method == "dp":
+        assert s["within_10px"] == 1.0
     steep = (rows < 130) & (rows > 40)
     err = np.abs(sk.rows[steep] - truth[steep])
     # dp follows the 72 deg flank through moves within a column; bayes's smoothness window and
     # per-row jump cost make it cut the corner by several rows (measured median ~9 px)
-    # (dp measured 2.07 with the learned region term, 1.9-2.0 with texture alone: the Mars-trained
+    # (dp measured 1.42; 2.07 before unsure columns were dropped, with the learned region term, 1.9-2.0 with texture alone: the Mars-trained
     # classifier finds a tall synthetic sky a little terrain-like; it pays on the real dev set)
     assert np.nanmedian(err) <= (2.1 if method == "dp" else 12.0)
 
@@ -185,7 +189,9 @@ def test_mask_excludes_region():
     assert np.isnan(sk.rows[100:140]).all() and not sk.valid[100:140].any()
     keep = np.r_[0:100, 140:240]
     err = np.abs(sk.rows[keep] - truth[keep])
-    assert np.nanmax(err) <= 5 and np.mean(err <= 3) >= 0.95
+    # a few columns (the mask's edges, faint patches) are reported as unknown, none as wrong
+    known = np.isfinite(err)
+    assert known.mean() >= 0.93 and np.nanmax(err) <= 5 and np.mean(err[known] <= 3) >= 0.95
 
 
 def test_bad_input():
@@ -224,7 +230,8 @@ def test_cli_writes_json_and_plot(tmp_path):
     sk = read_skyline_json(out)
     assert sk.width == 200 and sk.height == 160 and sk.image == "im.png"
     err = np.abs(sk.rows - truth)
-    assert np.median(err) <= 1.0 and np.mean(err <= 3) >= 0.95
+    known = np.isfinite(err)
+    assert known.mean() >= 0.93 and np.median(err[known]) <= 1.0 and np.mean(err[known] <= 3) >= 0.95
     assert plot.stat().st_size > 1000
     r = CliRunner().invoke(cli, ["detect", str(p), "-o", str(out)])
     assert r.exit_code == 2 and "--overwrite" in r.output

@@ -91,6 +91,10 @@ class DpOptions:
         column: a sliver under the mosaic's top edge is too thin to tell sky from hazy terrain,
         and calling it sky is the commonest false skyline [working px]
     refine_band : half-height of the full-resolution refinement band, in working-scale rows
+    min_confidence : a column whose skyline confidence is below this is reported as unknown
+        (no row, confidence 0) rather than guessed. Measured per column at 0.15: of the rows
+        within 3 px of the truth 1.8 % (Curiosity dev set) / 0.3 % (simulated sets) are dropped,
+        of the false skylines 55 % / 86 %, of the rows more than 10 px off 60 % / 67 %
     no_data_black : treat (0, 0, 0) pixels as no data
     """
 
@@ -112,6 +116,7 @@ class DpOptions:
     jump_cost: float = 0.05
     min_sky_rows: int = 3
     refine_band: float = 1.5
+    min_confidence: float = 0.15
     no_data_black: bool = True
 
 
@@ -696,8 +701,10 @@ def _detect_dp(img, valid, opt: DpOptions, model=None):
     if cs.size:
         r = top[cs]
         edge = G[r, cs]
-        above = np.array([np.mean(d[max(0, rr - 10):rr, c][valid_s[max(0, rr - 10):rr, c]])
-                          if rr > 0 and valid_s[max(0, rr - 10):rr, c].any() else 0.0
+        # the median over 30 rows: the texture term is blurred 7 columns wide, so on a steep
+        # flank the rows just above the skyline look like the terrain beside them
+        above = np.array([np.median(d[max(0, rr - 30):rr, c][valid_s[max(0, rr - 30):rr, c]])
+                          if rr > 0 and valid_s[max(0, rr - 30):rr, c].any() else 0.0
                           for rr, c in zip(r, cs)])
         conf_s[cs] = np.clip(edge, 0, 1) * np.clip(0.5 - 0.5 * above, 0, 1)
     no = ~have
@@ -706,6 +713,9 @@ def _detect_dp(img, valid, opt: DpOptions, model=None):
                          for c in range(w)])
     conf_s[no] = np.clip(0.5 + 0.5 * np.abs(col_mean[no]), 0, 1)
     conf = conf_s[full_cols]
+    unsure = np.isfinite(rows) & (conf < opt.min_confidence)
+    rows[unsure] = np.nan
+    conf[unsure] = 0.0
     rows[~col_valid] = np.nan
     conf[~col_valid] = 0.0
     return rows, conf, col_valid
