@@ -46,6 +46,8 @@ class PoseConfig:
     render_bins : azimuth bins of the horizons rendered for the attitude fit
     restarts_deg : [deg] offsets of the Gauss-Newton restarts per axis
     tolerance_m : [m] what "correct" means for the confidence (scenario 1: 5 m)
+    polish : finish the best candidate (and its best rival) by a search on the attitude-refitted
+        cost (:func:`_polish_position`)
     """
 
     match: MatchConfig = MatchConfig()
@@ -55,6 +57,7 @@ class PoseConfig:
     render_bins: int = 1440
     restarts_deg: tuple = (-2.5, 0.0, 2.5)
     tolerance_m: float = 5.0
+    polish: bool = True
 
 
 # --- forward model ------------------------------------------------------------------------------
@@ -613,6 +616,54 @@ def _refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, pla
     return x, y, s, local, att, robust_cost(resid, noise), resid
 
 
+def _polish_position(dem, q, x, y, att, *, camera_height_m, planet, render_bins, prior_pitch_deg,
+                     prior_roll_deg, noise, step_m=0.5, min_step_m=0.03, max_evals=120):
+    """Compass search of the position [m] on the attitude-refitted cost (:func:`robust_cost`).
+
+    The grid refinement (:func:`_refine`) ranks points by the shift search's score: whole-bin
+    azimuth shifts of a query levelled with an attitude fitted elsewhere. With 10 deg of tilt its
+    noise floor (~0.03 deg rms) hides metre-scale position information (a fix 1.3 m off whose
+    own cost was three times the truth's). Here every trial point gets its own yaw, pitch and
+    roll (Gauss-Newton from the current attitude, ~10 ms), so the cost is the model's own.
+    The 8 neighbours at the current step (``step_m`` at first) are tried; the best improvement
+    is taken and the step doubles (up to 8 ``step_m``), else it halves, down to ``min_step_m``.
+    Returns (x, y, attitude, cost, residual profile [deg]).
+    """
+    from .horizon import render_horizons
+
+    kw = dict(prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+
+    def evaluate(xs, ys, a0):
+        xs, ys = np.asarray(xs, float), np.asarray(ys, float)
+        ok = _inside(dem, xs, ys, 0.0)
+        out = [(np.inf, None, None)] * xs.size
+        if ok.any():
+            w = render_horizons(dem, xs[ok], ys[ok], camera_height_m=camera_height_m, planet=planet,
+                                azimuth_bins=render_bins).elevation_deg
+            for i, wi in zip(np.flatnonzero(ok), w):
+                a = fit_attitude(q, wi, a0.yaw_deg, a0.pitch_deg, a0.roll_deg, restarts_deg=(0.0,), **kw)
+                r = residual_profile(q, wi, a, **kw)
+                out[i] = (robust_cost(r, noise), a, r)
+        return out
+
+    (cost, att, resid), = evaluate([x], [y], att)
+    if att is None:
+        raise SkyfixError(f"the position ({x:.1f}, {y:.1f}) lies outside the DEM")
+    ring = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1) if (i, j) != (0, 0)], float)
+    step, evals = float(step_m), 1
+    while step >= min_step_m and evals < max_evals:
+        trials = evaluate(x + step * ring[:, 0], y + step * ring[:, 1], att)
+        evals += len(ring)
+        k = int(np.argmin([t[0] for t in trials]))
+        if trials[k][0] < cost:
+            x, y = x + step * ring[k, 0], y + step * ring[k, 1]
+            cost, att, resid = trials[k]
+            step = min(2.0 * step, 8.0 * step_m)  # a long way to go: stride out
+        else:
+            step /= 2.0
+    return float(x), float(y), att, float(cost), resid
+
+
 def residual_profile(q, world_el_deg, att, *, prior_pitch_deg=0.0, prior_roll_deg=0.0):
     """Query minus the world horizon seen with attitude ``att`` [deg] (NaN where unobserved)."""
     pred = body_profile(world_el_deg, att.yaw_deg, att.pitch_deg, att.roll_deg,
@@ -705,6 +756,21 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
                                 db_score=cs, cost=cost, resid=resid))
         # Ranked by the clipped cost: plain rms let outlier bins pick the wrong basin.
         results.sort(key=lambda d: d["cost"])
+        if config.polish:
+            # The best answer and its strongest rival in another basin get the same final
+            # polish, so the confidence's best-vs-other ratio compares like with like.
+            sep0 = config.tolerance_m if db is not None else 1.0
+            rival = next((d for d in results[1:] if math.hypot(d["x"] - results[0]["x"],
+                                                               d["y"] - results[0]["y"]) > sep0), None)
+            for d in (results[0], rival):
+                if d is None:
+                    continue
+                x, y, att_p, cost_p, resid_p = _polish_position(
+                    dem, q, d["x"], d["y"], d["att"], camera_height_m=camera_height_m,
+                    planet=planet, render_bins=config.render_bins, prior_pitch_deg=prior_pitch_deg,
+                    prior_roll_deg=prior_roll_deg, noise=noise)
+                d.update(x=x, y=y, att=att_p, heading=att_p.yaw_deg, cost=cost_p, resid=resid_p)
+            results.sort(key=lambda d: d["cost"])
         best = results[0]
         # "Another basin" is another answer beyond the tolerance: refined candidates often
         # converge onto the best one, and comparing with a copy of itself said nothing.
