@@ -54,3 +54,16 @@ def test_heading_vs_prior_groups_by_offset():
     assert [r["prior_offset_m"] for r in rows] == [10.0, 20.0]
     assert rows[0]["within_1deg_pct"] == 50.0 and rows[0]["within_2deg_pct"] == 100.0
     assert math.isclose(rows[1]["head_err_med_deg"], 0.2, abs_tol=1e-9)
+
+
+def test_atomic_writes_leave_files_with_the_usual_permissions(tmp_path):
+    """Outputs are written through a private temporary file; the result must not stay private
+    (0600) but get the mode a plain open() gives under the process's umask."""
+    import os
+
+    from skyfix._io import write_json
+
+    umask = os.umask(0)
+    os.umask(umask)
+    write_json(tmp_path / "a.json", {"x": 1})
+    assert (tmp_path / "a.json").stat().st_mode & 0o777 == 0o666 & ~umask
