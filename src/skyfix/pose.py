@@ -46,7 +46,7 @@ class PoseConfig:
     render_bins : azimuth bins of the horizons rendered for the attitude fit
     restarts_deg : [deg] offsets of the Gauss-Newton restarts per axis
     tolerance_m : [m] what "correct" means for the confidence (scenario 1: 5 m)
-    polish : finish the best candidate (and its best rival) by a search on the attitude-refitted
+    polish : finish every refined candidate by a search on the attitude-refitted
         cost (:func:`_polish_position`)
     """
 
@@ -731,8 +731,12 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
             raise ParameterError("the prior area lies outside the DEM")
         gx, gy = gx[ok], gy[ok]
         prepare_query(q, config.match.remove_tilt, config.match.min_observed)  # validates the view
-        sc, sh = _score_points(dem, gx, gy, q, camera_height_m=camera_height_m, planet=planet,
-                               n_bins=n, remove_tilt=config.match.remove_tilt, workers=workers)
+        pts = _render_points(dem, gx, gy, camera_height_m=camera_height_m, planet=planet, n_bins=n)
+        _, sh, _ = robust_scores(pts, q, remove_tilt=config.match.remove_tilt, workers=workers)
+        # Candidates by the clipped cost: rocks covering a quarter of the view (OCCL) named the
+        # wrong outlier bins at the sum-of-squares optimum and kept the true basin out of the
+        # refined few; clipped, each rock bin costs the same everywhere.
+        sc = clipped_costs(pts, q, sh, config.match.remove_tilt)
         order = np.argsort(sc)
         cands = []
         for i in order:
@@ -757,14 +761,10 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         # Ranked by the clipped cost: plain rms let outlier bins pick the wrong basin.
         results.sort(key=lambda d: d["cost"])
         if config.polish:
-            # The best answer and its strongest rival in another basin get the same final
-            # polish, so the confidence's best-vs-other ratio compares like with like.
-            sep0 = config.tolerance_m if db is not None else 1.0
-            rival = next((d for d in results[1:] if math.hypot(d["x"] - results[0]["x"],
-                                                               d["y"] - results[0]["y"]) > sep0), None)
-            for d in (results[0], rival):
-                if d is None:
-                    continue
+            # Every refined candidate gets the same final polish: the grid's score can leave
+            # the true basin's candidate behind a worse one (rocks over a quarter of the view),
+            # and the confidence's best-vs-other ratio then compares like with like.
+            for d in results:
                 x, y, att_p, cost_p, resid_p = _polish_position(
                     dem, q, d["x"], d["y"], d["att"], camera_height_m=camera_height_m,
                     planet=planet, render_bins=config.render_bins, prior_pitch_deg=prior_pitch_deg,
