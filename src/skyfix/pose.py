@@ -343,6 +343,13 @@ def confidence_from_features(feat: dict, model: dict | None = None, key: str = "
     return float(p)
 
 
+def _structureless_cap(conf: float, relief_deg: float, noise_deg: float) -> float:
+    """At most 0.05 when the query's relief (std [deg]) is within twice its noise [deg]: such a
+    horizon fits anywhere, and no calibration case is that flat, so the fitted model would be
+    extrapolating (it gave 0.32 on a flat plain)."""
+    return min(conf, 0.05) if relief_deg <= 2.0 * noise_deg else conf
+
+
 # --- locate -----------------------------------------------------------------------------------------
 
 def _profile_arrays(profile):
@@ -801,6 +808,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     feat = confidence_features(best_s, other, rms, noise, relief, float(obs.mean()), psig, tilt)
     # Without a database the answer is judged at scenario 2's tolerance (1 m), not 5 m.
     conf = confidence_from_features(feat, model, "locate" if db is not None else "locate_prior")
+    conf = _structureless_cap(conf, relief, noise)
     crs, lon, lat = _crs_and_lonlat(crs_wkt, fx, fy)
     fix = Fix(float(fx), float(fy), crs, lon, lat, float(heading) % 360.0, float(pitch),
               float(roll), float(psig), float(hsig), conf, float(best_s), tuple(cand_out), feat)
@@ -845,6 +853,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                                att.yaw_sigma_deg,
                                math.hypot(att.pitch_deg - prior_pitch_deg, att.roll_deg - prior_roll_deg))
     conf = confidence_from_features(feat, model, "heading")
+    conf = _structureless_cap(conf, float(np.nanstd(q)), noise)
     return HeadingFix(att.yaw_deg % 360.0, att.yaw_sigma_deg, att.pitch_deg, att.roll_deg, conf,
                       att.rms_deg ** 2, float(x), float(y), feat)
 
