@@ -12,7 +12,9 @@ Reads every labelled mosaic of the dev set (``NAME.png`` + ``NAME_label.png``, s
 simulator's visible skylines, so that the classifier also knows skies the real dev set lacks
 (Earth's blue, clouds, glare). Each image also enters as a crop cut just below its skyline, so
 that sky dominates it (:func:`sky_dominant_crop`; ``--no-sky-crops`` to skip). The shipped model was trained with the sets that
-``scripts/make_sky_sims.sh`` renders (seeds 901-905, never used for evaluation).
+``scripts/make_sky_sims.sh`` renders (seeds 901-905, never used for evaluation), as the simulator
+rendered them before commit ac76fd1 (shaded ground: sky-view light, +-20 % metre-scale albedo);
+frames rendered now differ in their shaded ground, so retraining gives a slightly different model.
 
 The held-out (leave-one-image-out) accuracy of this recipe is printed by
 ``benchmarks/bench_detect.py --cv``.
