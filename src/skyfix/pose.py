@@ -611,14 +611,16 @@ def _refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, pla
     p0, r0 = _harmonic_tilt(q, body_profile(world, ch, n_bins=n))
     att = fit(world, ch, prior_pitch_deg + p0, prior_roll_deg + r0, config.restarts_deg)
     x, y, s, hd, local = _refine(dem, level(att), cx, cy, step0, config.levels, **kw)
-    att = fit(world_at(x, y), att.yaw_deg, att.pitch_deg, att.roll_deg, (0.0,))
+    world = world_at(x, y)
+    att = fit(world, att.yaw_deg, att.pitch_deg, att.roll_deg, (0.0,))
     ql = level(att)
     if ql is not q and config.levels > 1:
         # The attitude moved with the position: redo the finest level with the new levelling.
         fine = step0 / 4.0 ** (config.levels - 1)
         x, y, s, hd, local = _refine(dem, ql, x, y, fine, 1, **kw)
-        att = fit(world_at(x, y), att.yaw_deg, att.pitch_deg, att.roll_deg, (0.0,))
-    resid = residual_profile(q, world_at(x, y), att, prior_pitch_deg=prior_pitch_deg,
+        world = world_at(x, y)
+        att = fit(world, att.yaw_deg, att.pitch_deg, att.roll_deg, (0.0,))
+    resid = residual_profile(q, world, att, prior_pitch_deg=prior_pitch_deg,
                              prior_roll_deg=prior_roll_deg)
     return x, y, s, local, att, robust_cost(resid, noise), resid
 
@@ -848,12 +850,12 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     # Landscape inside the window: best vs best shift more than 3 deg away.
     far = inwin & (np.abs((shifts - att.yaw_deg + 180.0) % 360.0 - 180.0) > 3.0)
     other = float(s[far].min()) if far.any() else np.inf
+    relief = float(np.nanstd(q))
     feat = confidence_features(float(s[inwin].min()), other, att.robust_rms_deg, noise,
-                               float(np.nanstd(q)), float(np.isfinite(q).mean()),
+                               relief, float(np.isfinite(q).mean()),
                                att.yaw_sigma_deg,
                                math.hypot(att.pitch_deg - prior_pitch_deg, att.roll_deg - prior_roll_deg))
-    conf = confidence_from_features(feat, model, "heading")
-    conf = _structureless_cap(conf, float(np.nanstd(q)), noise)
+    conf = _structureless_cap(confidence_from_features(feat, model, "heading"), relief, noise)
     return HeadingFix(att.yaw_deg % 360.0, att.yaw_sigma_deg, att.pitch_deg, att.roll_deg, conf,
                       att.rms_deg ** 2, float(x), float(y), feat)
 
