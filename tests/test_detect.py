@@ -81,16 +81,15 @@ def test_steep_slope(method):
     s = _score(sk, truth)
     # dp: the flank's foot (rows 8-13 px off at confidence < 0.15) is reported as unknown
     assert s["false_rate"] == 0 and s["missed_rate"] <= (0.08 if method == "dp" else 0.02)
-    assert s["within_3px"] >= (0.95 if method == "dp" else 0.85)  # measured 0.96 (dp)
+    assert s["within_3px"] >= (0.95 if method == "dp" else 0.9)  # measured 0.96 (both)
     if method == "dp":
         assert s["within_10px"] == 1.0
     steep = (rows < 130) & (rows > 40)
     err = np.abs(sk.rows[steep] - truth[steep])
-    # dp follows the 72 deg flank through moves within a column; bayes's smoothness window and
-    # per-row jump cost make it cut the corner by several rows (measured median ~9 px)
-    # (dp measured 1.42; 2.07 before unsure columns were dropped, with the learned region term, 1.9-2.0 with texture alone: the Mars-trained
-    # classifier finds a tall synthetic sky a little terrain-like; it pays on the real dev set)
-    assert np.nanmedian(err) <= (2.1 if method == "dp" else 12.0)
+    # dp follows the 72 deg flank through moves within a column (measured median 1.42 px),
+    # bayes through its smoothness window, held to the edge by its boundary term (1.32 px; ~9 px
+    # without it, cutting the corner)
+    assert np.nanmedian(err) <= 2.1
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -105,6 +104,19 @@ def test_skyline_leaving_frame(method):
     assert s["missed_rate"] <= 0.06  # measured 0.047: the last columns hold only a few sky rows
     assert s["within_3px"] >= 0.9
     assert np.isnan(sk.rows[215:]).all()
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_sky_filling_most_of_the_frame(method):
+    """Sky over three quarters of the frame: its own noise is then the image's median texture.
+    bayes's old prior (edge density over 0.4 x the median is terrain) called every column all
+    sky (missed 100 %)."""
+    c = np.arange(300, dtype=float)
+    img, truth = synth(120 + 10 * np.sin(c / 30.0), height=160, seed=4)
+    s = _score(detect_skyline(img, method=method), truth)
+    assert s["false_rate"] == 0 and s["missed_rate"] <= 0.02
+    assert s["within_3px"] >= 0.8  # measured 0.86 (bayes)
+    assert s["within_10px"] == 1.0
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -255,14 +267,17 @@ def _dev_case(name):
 
 
 @pytest.mark.shared_data
+@pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize("name", ["412_1", "437_1"])
-def test_real_mosaic_with_sky(name):
+def test_real_mosaic_with_sky(name, method):
     img, truth = _dev_case(name)
-    s = score_skyline(detect_skyline(img), truth)
-    # measured: both around 0.5-1.2 px mean error, >= 95 % within 3 px (see bench_detect.py)
+    s = score_skyline(detect_skyline(img, method=method), truth)
+    # measured: 0.3-0.6 px mean error, >= 95 % within 3 px, either method (bench_detect.py);
+    # bayes was 8-10 px off before its boundary term and row-wise edge density
     assert s["mean_abs_err_px"] <= 2.0
     assert s["within_3px"] >= 0.9
-    assert s["false_rate"] <= 0.2 and s["missed_rate"] <= 0.05
+    # bayes leaves more columns unknown where the edge is faint (412_1: 6.2 % missed)
+    assert s["false_rate"] <= 0.2 and s["missed_rate"] <= (0.05 if method == "dp" else 0.1)
 
 
 @pytest.mark.shared_data
