@@ -206,6 +206,19 @@ def test_mask_excludes_region():
     assert known.mean() >= 0.93 and np.nanmax(err) <= 5 and np.mean(err[known] <= 3) >= 0.95
 
 
+def test_short_isolated_runs_are_dropped():
+    from skyfix.detect import _drop_short_runs
+
+    rows = np.full(30, np.nan)
+    rows[2:5] = 10.0     # 3 columns: dropped
+    rows[10:22] = 20.0   # 12 columns: kept
+    rows[27:30] = 5.0    # 3 columns at the edge: dropped
+    conf = np.where(np.isfinite(rows), 0.8, 0.0)
+    _drop_short_runs(rows, conf, 8)
+    assert np.flatnonzero(np.isfinite(rows)).tolist() == list(range(10, 22))
+    assert np.all(conf[np.isnan(rows)] == 0) and np.all(conf[10:22] == 0.8)
+
+
 def test_bad_input():
     with pytest.raises(ParameterError, match="method"):
         detect_skyline(np.zeros((50, 50), np.uint8) + 9, method="nope")
