@@ -239,6 +239,26 @@ def test_gross_outlier_bins_do_not_move_the_fix(world):
     assert abs(_ang(fix.heading_deg - th)) < 0.3
 
 
+def test_false_fragment_that_misleads_the_database_search_is_left_out_on_retry(world):
+    # A false skyline fragment 20 deg wide, 15 deg above the truth: the database's sum of squares
+    # picks a basin 235 m away (fit residual 17x the noise). Searching again with each quarter of
+    # the view left out in turn brings the true basin into the refined candidates, where the
+    # whole profile's clipped cost prefers it (0.024 vs 0.18).
+    from dataclasses import replace
+
+    dem, st = world
+    tx, ty, th = 733.3, 871.9, 123.4
+    prof = _with_near_rock(synthetic_profile(dem, tx, ty, th, noise_deg=0.1, rng=4), 250.0,
+                           width_deg=20.0, lift_deg=15.0, spikes=())
+    once = locate(prof, db=st, dem=dem, config=replace(CFG, retry_below=0.0,
+                                                       retry_rms_ratio=np.inf))
+    assert np.hypot(once.x - tx, once.y - ty) > 100.0  # the failure the retry is for
+    fix = locate(prof, db=st, dem=dem, config=CFG)
+    assert np.hypot(fix.x - tx, fix.y - ty) < 1.0
+    assert abs(_ang(fix.heading_deg - th)) < 0.3
+    assert fix.score < 0.5 * once.score
+
+
 def test_residual_correlation_length_of_white_and_ar1_noise():
     """Integrated autocorrelation length against closed forms: 1 for white noise and
     (1 + rho) / (1 - rho) for an AR(1) sequence."""

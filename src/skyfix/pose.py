@@ -16,6 +16,11 @@ Pipeline of :func:`locate`:
 4. confidence: a logistic model on features of the score landscape (best vs best of another basin,
    residual vs expected noise, relief of the skyline), fitted on simulated cases by
    ``scripts/calibrate_confidence.py`` (``skyfix/models/confidence.json``).
+5. retry (database only): a fix with low confidence or a residual far above the noise is searched
+   again with each quarter of the observed skyline left out in turn; the new candidates go
+   through 2-3 and the best on the whole profile wins. A false fragment of skyline can outweigh
+   the rest of the view in the database's sum of squares; one of the partial searches leaves it
+   out.
 
 The forward model (world horizon -> body-frame profile for an attitude) is :func:`body_profile`.
 """
@@ -48,6 +53,16 @@ class PoseConfig:
     tolerance_m : [m] what "correct" means for the confidence (scenario 1: 5 m)
     polish : finish every refined candidate by a search on the attitude-refitted
         cost (:func:`_polish_position`)
+    retry_below, retry_rms_ratio : with a database, a fix whose confidence is below
+        ``retry_below``, or whose robust residual rms exceeds ``retry_rms_ratio`` times the
+        profile's noise, is searched again with each of ``retry_segments`` contiguous parts of
+        the observed skyline left out in turn (:func:`_segment_candidates`); the new candidates
+        are refined and ranked with the others on the whole profile. A false skyline fragment a
+        few degrees wide (a shade boundary seen in two frames) can outweigh the rest of the view
+        in the database's sum of squares and keep the true basin out of the candidates. In the
+        whole-pipeline scenario-1 cases (59 correct, 6 wrong) either trigger catches all the
+        wrong fixes; the rms one also fires on 3 correct ones (time only). 0 / inf = never
+    retry_segments, retry_per_segment : how many parts, and candidates kept from each search
     """
 
     match: MatchConfig = MatchConfig()
@@ -58,6 +73,10 @@ class PoseConfig:
     restarts_deg: tuple = (-2.5, 0.0, 2.5)
     tolerance_m: float = 5.0
     polish: bool = True
+    retry_below: float = 0.5
+    retry_rms_ratio: float = 3.0
+    retry_segments: int = 4
+    retry_per_segment: int = 2
 
 
 # --- forward model ------------------------------------------------------------------------------
@@ -692,6 +711,74 @@ def robust_cost(resid, noise_deg):
 
 
 
+def _refined(dem, q, cands, step0, config, *, camera_height_m, planet, prior_pitch_deg,
+             prior_roll_deg, noise):
+    """Refine (:func:`_refine_candidate`) and polish (:func:`_polish_position`) each candidate
+    (x [m], y [m], score, heading [deg]); result dicts sorted by the clipped cost."""
+    results = []
+    for cx, cy, cs, ch in cands:
+        x, y, s, local, att, cost, resid = _refine_candidate(
+            dem, q, cx, cy, ch, step0, config, camera_height_m=camera_height_m, planet=planet,
+            prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg, noise=noise)
+        results.append(dict(x=x, y=y, score=s, heading=att.yaw_deg, att=att, local=local,
+                            db_score=cs, cost=cost, resid=resid))
+    if config.polish:
+        # Every refined candidate gets the same final polish: the grid's score can leave the
+        # true basin's candidate behind a worse one (rocks over a quarter of the view), and the
+        # confidence's best-vs-other ratio then compares like with like.
+        for d in results:
+            x, y, att_p, cost_p, resid_p = _polish_position(
+                dem, q, d["x"], d["y"], d["att"], camera_height_m=camera_height_m, planet=planet,
+                render_bins=config.render_bins, prior_pitch_deg=prior_pitch_deg,
+                prior_roll_deg=prior_roll_deg, noise=noise)
+            d.update(x=x, y=y, att=att_p, heading=att_p.yaw_deg, cost=cost_p, resid=resid_p)
+    # Ranked by the clipped cost: plain rms let outlier bins pick the wrong basin.
+    results.sort(key=lambda d: d["cost"])
+    return results
+
+
+def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg, model, key):
+    """The best refined result, its uncertainties and confidence. results: refined dicts sorted
+    by cost; rest: unrefined candidates (x, y, score, heading); sep [m]: how far another answer
+    must be to count as a rival."""
+    best = results[0]
+    far = lambda x, y: math.hypot(x - best["x"], y - best["y"]) > sep  # noqa: E731
+    other = min([d["cost"] for d in results[1:] if far(d["x"], d["y"])] +
+                [c[2] for c in rest if far(c[0], c[1])] or [np.inf])
+    att = best["att"]
+    obs = np.isfinite(q)
+    psig = _position_sigma(best["local"], best["score"], int(obs.sum()), noise,
+                           corr_bins=residual_correlation_bins(best["resid"]))
+    tilt = math.hypot(att.pitch_deg - prior_pitch_deg, att.roll_deg - prior_roll_deg)
+    feat = confidence_features(best["cost"], other, att.robust_rms_deg, noise, relief,
+                               float(obs.mean()), psig, tilt)
+    # Without a database the answer is judged at scenario 2's tolerance (1 m), not 5 m.
+    conf = _structureless_cap(confidence_from_features(feat, model, key), relief, noise)
+    return dict(x=best["x"], y=best["y"], heading=att.yaw_deg, pitch=att.pitch_deg,
+                roll=att.roll_deg, cost=best["cost"], psig=psig, hsig=att.yaw_sigma_deg,
+                feat=feat, conf=conf)
+
+
+def _segment_candidates(db, q, config, known, *, prior_xy=None, prior_radius_m=None):
+    """Database candidates (x, y, score, heading) found with each of ``config.retry_segments``
+    contiguous parts of the observed skyline left out in turn, farther than the tolerance from
+    every position in ``known`` and from each other (the first ``retry_per_segment`` of each
+    search)."""
+    obs = np.flatnonzero(np.isfinite(q))
+    out = []
+    for part in np.array_split(obs, max(1, config.retry_segments)):
+        if part.size == 0 or obs.size - part.size < config.match.min_observed:
+            continue
+        qk = q.copy()
+        qk[part] = np.nan
+        m = match_database(db, qk, config.match, prior_xy=prior_xy, prior_radius_m=prior_radius_m)
+        for c in m.candidates[: config.retry_per_segment]:
+            if all(math.hypot(c.x - x, c.y - y) > config.tolerance_m for x, y in known):
+                out.append((c.x, c.y, c.score, c.heading_deg))
+                known = known + [(c.x, c.y)]
+    return out
+
+
 def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
            prior_pitch_deg: float = 0.0, prior_roll_deg: float = 0.0,
            camera_height_m: float | None = None, planet=None, config: PoseConfig = PoseConfig(),
@@ -759,45 +846,31 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         raise SkyfixError("no candidate position found: the database holds no usable skyline")
     obs = np.isfinite(q)
     relief = float(np.nanstd(q))
-    results = []
     if dem is not None:
-        for cx, cy, cs, ch in cands[: config.refine_candidates]:
-            x, y, s, local, att, cost, resid = _refine_candidate(
-                dem, q, cx, cy, ch, step0, config, camera_height_m=camera_height_m, planet=planet,
-                prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg, noise=noise)
-            results.append(dict(x=x, y=y, score=s, heading=att.yaw_deg, att=att, local=local,
-                                db_score=cs, cost=cost, resid=resid))
-        # Ranked by the clipped cost: plain rms let outlier bins pick the wrong basin.
-        results.sort(key=lambda d: d["cost"])
-        if config.polish:
-            # Every refined candidate gets the same final polish: the grid's score can leave
-            # the true basin's candidate behind a worse one (rocks over a quarter of the view),
-            # and the confidence's best-vs-other ratio then compares like with like.
-            for d in results:
-                x, y, att_p, cost_p, resid_p = _polish_position(
-                    dem, q, d["x"], d["y"], d["att"], camera_height_m=camera_height_m,
-                    planet=planet, render_bins=config.render_bins, prior_pitch_deg=prior_pitch_deg,
-                    prior_roll_deg=prior_roll_deg, noise=noise)
-                d.update(x=x, y=y, att=att_p, heading=att_p.yaw_deg, cost=cost_p, resid=resid_p)
-            results.sort(key=lambda d: d["cost"])
-        best = results[0]
+        kw = dict(camera_height_m=camera_height_m, planet=planet, prior_pitch_deg=prior_pitch_deg,
+                  prior_roll_deg=prior_roll_deg, noise=noise)
+        results = _refined(dem, q, cands[: config.refine_candidates], step0, config, **kw)
+        rest = list(cands[config.refine_candidates:])
         # "Another basin" is another answer beyond the tolerance: refined candidates often
         # converge onto the best one, and comparing with a copy of itself said nothing.
         sep = config.tolerance_m if db is not None else 1.0
-        far = lambda x, y: math.hypot(x - best["x"], y - best["y"]) > sep  # noqa: E731
-        other = min([d["cost"] for d in results[1:] if far(d["x"], d["y"])] +
-                    [c[2] for c in cands[len(results):] if far(c[0], c[1])] or [np.inf])
-        best_s = best["cost"]
-        att = best["att"]
-        psig = _position_sigma(best["local"], best["score"], int(obs.sum()), noise,
-                               corr_bins=residual_correlation_bins(best["resid"]))
-        fx, fy, heading, pitch, roll = best["x"], best["y"], att.yaw_deg, att.pitch_deg, att.roll_deg
-        hsig, rms = att.yaw_sigma_deg, att.robust_rms_deg
-        tilt = math.hypot(pitch - prior_pitch_deg, roll - prior_roll_deg)
+        out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg,
+                      model, "locate" if db is not None else "locate_prior")
+        if db is not None and (out["conf"] < config.retry_below or
+                               out["feat"]["log_rms_over_noise"] > math.log(config.retry_rms_ratio)):
+            known = [(d["x"], d["y"]) for d in results] + [(c[0], c[1]) for c in rest]
+            extra = _segment_candidates(db, q, config, known, prior_xy=prior_xy,
+                                        prior_radius_m=prior_radius_m)
+            if extra:
+                results = sorted(results + _refined(dem, q, extra, step0, config, **kw),
+                                 key=lambda d: d["cost"])
+                out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg,
+                              prior_roll_deg, model, "locate")
+        fx, fy, heading, pitch, roll = out["x"], out["y"], out["heading"], out["pitch"], out["roll"]
+        best_s, psig, hsig, feat, conf = out["cost"], out["psig"], out["hsig"], out["feat"], out["conf"]
         cand_out = [{"x": d["x"], "y": d["y"], "heading_deg": d["heading"],
                      "score": d["cost"]} for d in results]
-        cand_out += [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]}
-                     for c in cands[len(results):]]
+        cand_out += [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]} for c in rest]
     else:
         cx, cy, cs, ch = cands[0]
         other = cands[1][2] if len(cands) > 1 else np.inf
@@ -807,10 +880,8 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         hsig, rms = 360.0 / n, math.sqrt(cs)
         tilt = 0.0
         cand_out = [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]} for c in cands]
-    feat = confidence_features(best_s, other, rms, noise, relief, float(obs.mean()), psig, tilt)
-    # Without a database the answer is judged at scenario 2's tolerance (1 m), not 5 m.
-    conf = confidence_from_features(feat, model, "locate" if db is not None else "locate_prior")
-    conf = _structureless_cap(conf, relief, noise)
+        feat = confidence_features(best_s, other, rms, noise, relief, float(obs.mean()), psig, tilt)
+        conf = _structureless_cap(confidence_from_features(feat, model, "locate"), relief, noise)
     crs, lon, lat = _crs_and_lonlat(crs_wkt, fx, fy)
     fix = Fix(float(fx), float(fy), crs, lon, lat, float(heading) % 360.0, float(pitch),
               float(roll), float(psig), float(hsig), conf, float(best_s), tuple(cand_out), feat)
