@@ -836,7 +836,9 @@ def _detect_bayes(img, valid, opt: BayesOptions, model=None):
                            0.0, opt.switch_cost)
         # total cost of this segmentation under the current likelihoods (lower is better)
         cols = np.arange(w)
-        tot = np.where(top >= 0, P[np.maximum(top, 0), cols], none - opt.none_cost).sum()
+        tt = np.maximum(top, 0)
+        tot = np.where(top >= 0, P[tt, cols] + opt.w_boundary * (1.0 - B[tt, cols]),
+                       none - opt.none_cost).sum()
         ll = -tot
         if best is not None and ll <= prev_ll + 1e-3 * abs(prev_ll):
             break
