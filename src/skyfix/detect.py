@@ -511,19 +511,34 @@ def _dp_costs(gray_s, valid_s, opt: DpOptions, d=None):
 
     rows = np.arange(h, dtype=np.float64)[:, None]
     pix = opt.w_grad * (1 - G) + opt.w_edge * (1 - E) + opt.w_height * rows / h
-    # the skyline lies at row r only if r and r - 1 are valid (sky above, terrain at r)
-    ok = valid_s.copy()
-    ok[1:] &= valid_s[:-1]
-    ok[0] = False
-    if opt.min_sky_rows > 1:
-        n_above = np.cumsum(valid_s, axis=0) - valid_s  # valid rows above r
-        ok &= n_above >= opt.min_sky_rows
+    ok = _skyline_allowed(valid_s, opt.min_sky_rows)
     enter = pix + opt.w_region * P[:-1]
     enter = np.where(ok, enter, _BIG)
     vert = np.where(ok, pix + opt.vertical_cost, _BIG)
     # no skyline: the whole column terrain (region 0) or the whole column sky (P[h])
     none = opt.none_cost + opt.w_region * np.minimum(0.0, P[h])
     return enter, vert, G, none, d
+
+
+def _skyline_allowed(valid, min_sky_rows=1):
+    """Where a skyline row may lie (bool, shape of ``valid``): the pixel and the one above it are
+    valid (sky above, terrain at r) and at least ``min_sky_rows`` valid rows lie above it."""
+    ok = valid.copy()
+    ok[1:] &= valid[:-1]
+    ok[0] = False
+    if min_sky_rows > 1:
+        ok &= (np.cumsum(valid, axis=0) - valid) >= min_sky_rows
+    return ok
+
+
+def _vertical_step(gray):
+    """|grey(r) - grey(r - 1)| [grey levels] on the grey smoothed with sigma 1 px; row 0 is 0."""
+    import cv2
+
+    sm = cv2.GaussianBlur(np.asarray(gray, np.float32), (0, 0), 1.0)
+    step = np.zeros_like(sm)
+    step[1:] = np.abs(sm[1:] - sm[:-1])
+    return step
 
 
 def _refine_full(gray, valid, top_full, bottom_full, f, opt: DpOptions):
@@ -540,13 +555,8 @@ def _refine_full(gray, valid, top_full, bottom_full, f, opt: DpOptions):
     out = np.full(W, np.nan)
     if not have.any():
         return out
-    sm = cv2.GaussianBlur(gray, (0, 0), 1.0)
-    # step between rows r - 1 and r: the skyline is at r when it is large
-    step = np.zeros_like(sm)
-    step[1:] = np.abs(sm[1:] - sm[:-1])
-    ok = valid.copy()
-    ok[1:] &= valid[:-1]
-    ok[0] = False
+    step = _vertical_step(gray)  # the skyline is at r when the step into r is large
+    ok = _skyline_allowed(valid)
     m = int(math.ceil(opt.refine_band * f)) + 1
     a = np.where(have, np.floor(np.nan_to_num(top_full)) - m, 0).astype(np.int64)
     b = np.where(have, np.ceil(np.nan_to_num(bottom_full)) + f - 1 + m, -1).astype(np.int64)
@@ -775,13 +785,8 @@ def _bayes_features(gray_s, rgb_s, valid_s):
 
 
 def _boundary_strength(gray_s, valid_s):
-    """Vertical intensity step between rows r - 1 and r on the smoothed grey, over its 99th
-    percentile, clipped to [0, 1]."""
-    import cv2
-
-    sm = cv2.GaussianBlur(np.asarray(gray_s, np.float32), (0, 0), 1.0)
-    step = np.zeros_like(sm)
-    step[1:] = np.abs(sm[1:] - sm[:-1])
+    """:func:`_vertical_step` over its 99th percentile, clipped to [0, 1]."""
+    step = _vertical_step(gray_s)
     scale = np.percentile(step[valid_s], 99) if valid_s.any() else 1.0
     return np.clip(step / max(scale, 1e-6), 0, 1).astype(np.float64)
 
@@ -816,11 +821,7 @@ def _detect_bayes(img, valid, opt: BayesOptions, model=None):
         llr = llr - opt.w_model * np.clip(_resample_to(lo, fm, f, (h, w)), -3.0, 3.0)
     elif opt.init not in ("model", "prior"):
         raise ParameterError(f"unknown bayes init {opt.init!r}: choose 'model' or 'prior'")
-    ok = valid_s.copy()
-    ok[1:] &= valid_s[:-1]
-    ok[0] = False
-    if opt.min_sky_rows > 1:
-        ok &= (np.cumsum(valid_s, axis=0) - valid_s) >= opt.min_sky_rows
+    ok = _skyline_allowed(valid_s, opt.min_sky_rows)
     B = _boundary_strength(gray_s, valid_s)
     rng = np.random.default_rng(opt.seed)
     prev_ll = -np.inf
