@@ -752,7 +752,6 @@ def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_de
     tilt = math.hypot(att.pitch_deg - prior_pitch_deg, att.roll_deg - prior_roll_deg)
     feat = confidence_features(best["cost"], other, att.robust_rms_deg, noise, relief,
                                float(obs.mean()), psig, tilt)
-    # Without a database the answer is judged at scenario 2's tolerance (1 m), not 5 m.
     conf = _structureless_cap(confidence_from_features(feat, model, key), relief, noise)
     return dict(x=best["x"], y=best["y"], heading=att.yaw_deg, pitch=att.pitch_deg,
                 roll=att.roll_deg, cost=best["cost"], psig=psig, hsig=att.yaw_sigma_deg,
@@ -844,7 +843,6 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         crs_wkt = dem.crs_wkt
     if not cands:
         raise SkyfixError("no candidate position found: the database holds no usable skyline")
-    obs = np.isfinite(q)
     relief = float(np.nanstd(q))
     if dem is not None:
         kw = dict(camera_height_m=camera_height_m, planet=planet, prior_pitch_deg=prior_pitch_deg,
@@ -854,6 +852,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         # "Another basin" is another answer beyond the tolerance: refined candidates often
         # converge onto the best one, and comparing with a copy of itself said nothing.
         sep = config.tolerance_m if db is not None else 1.0
+        # Without a database the answer is judged at scenario 2's tolerance (1 m), not 5 m.
         out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg,
                       model, "locate" if db is not None else "locate_prior")
         if db is not None and (out["conf"] < config.retry_below or
@@ -880,7 +879,8 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         hsig, rms = 360.0 / n, math.sqrt(cs)
         tilt = 0.0
         cand_out = [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]} for c in cands]
-        feat = confidence_features(best_s, other, rms, noise, relief, float(obs.mean()), psig, tilt)
+        feat = confidence_features(best_s, other, rms, noise, relief, float(np.isfinite(q).mean()),
+                                   psig, tilt)
         conf = _structureless_cap(confidence_from_features(feat, model, "locate"), relief, noise)
     crs, lon, lat = _crs_and_lonlat(crs_wkt, fx, fy)
     fix = Fix(float(fx), float(fy), crs, lon, lat, float(heading) % 360.0, float(pitch),
