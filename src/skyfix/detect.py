@@ -101,17 +101,17 @@ class DpOptions:
         ``min_confidence`` cut in isolated slivers is mostly a haze band's edge or a cloud's.
         Dev set, leave-one-image-out: 1.37 -> 1.33 px, false skyline 3.24 -> 3.19 %, missed
         8.08 -> 8.17 %; simulated CLUT 45 -> 40 px; REF, OCCL unchanged [working px]
-    cloud_llr : (``region="both"``; 0 = off, the default) a pixel the texture term calls
-        terrain but the classifier calls sky with log-odds above this [nats], and which is
-        brighter than the image's unmistakable sky, is taken for a cloud and its texture term is
-        set to 0. Clouds are textured, so otherwise a column whose sky holds one costs more as a
-        skyline than as "no skyline", or the cloud's lower edge is taken. At 1.0: simulated CLUT
-        (Earth clouds) 39.5 -> 12.5 px, missed 45 -> 14 %; REF 0.25 -> 0.30 px; dev set held out
-        missed 8.2 -> 6.6 %, false skyline unchanged; end to end scenario-3 CLUT 3/10 -> 6/10.
-        Off by default because it also fires on sunlit grey ground under a blue sky (which the
-        classifier, trained on Mars, calls sky): a simulated glacier frame set went from 0.63 to
-        8.6 px and its scenario-1 fix from 0.2 m to 6.1 m at confidence 0.98. Requiring sure sky
-        below the pixel in its column removes that but also most of the CLUT gain (37.7 px)
+    cloud_llr : (``region="both"``; 0 disables) a pixel the texture term calls terrain but the
+        classifier calls sky with log-odds above this [nats], and which is brighter than the
+        clear sky in every colour channel (:func:`_cloud_like`), is taken for a cloud: its
+        texture term is set to 0. Clouds are textured, so otherwise a column whose sky holds one
+        costs more as a skyline than as "no skyline", or the cloud's lower edge is taken. A
+        sunlit cloud scatters every band more than the clear sky; sunlit grey ground under a
+        blue sky is brighter in grey level but not in blue (the classifier, trained on Mars,
+        calls it sky): a grey-level test misfired there (a glacier frame set 0.63 -> 8.6 px, its
+        scenario-1 fix 0.2 -> 6.1 m at confidence 0.98), the per-channel one does not (0.64 px).
+        Simulated CLUT (Earth clouds) 39.5 -> 13.4 px, missed 45 -> 13 %; REF, OCCL unchanged;
+        dev set held out: missed 8.2 -> 6.4 %, error and false skyline unchanged
     no_data_black : treat (0, 0, 0) pixels as no data
     """
 
@@ -135,7 +135,7 @@ class DpOptions:
     refine_band: float = 1.5
     min_confidence: float = 0.15
     min_run: int = 4
-    cloud_llr: float = 0.0
+    cloud_llr: float = 1.0
     no_data_black: bool = True
 
 
@@ -691,15 +691,19 @@ def sky_log_odds(img, valid, gray, model, model_pixels):
     return lo, v_m, fm
 
 
-def _cloud_like(tex, lo, gray_s, valid_s, min_llr, sure_llr=2.0, min_sure=100):
+def _cloud_like(tex, lo, rgb_s, valid_s, min_llr, sure_llr=2.0, min_sure=100, sky_q=10.0):
     """Pixels (bool, working scale) that look like a cloud: textured (``tex`` > 0), called sky by
-    the classifier (log-odds ``lo`` > ``min_llr`` [nats]) and brighter than the median of the
-    image's unmistakable sky (smooth and ``lo`` > ``sure_llr``). None when under ``min_sure``
-    pixels of such sky exist: without a sky level a bright textured pixel may be sunlit rock."""
+    the classifier (log-odds ``lo`` > ``min_llr`` [nats]) and brighter in every channel of
+    ``rgb_s`` (h, w, 3) than the ``sky_q`` percentile of the image's unmistakable sky (smooth
+    and ``lo`` > ``sure_llr``). None when under ``min_sure`` pixels of such sky exist: without
+    a sky level a bright textured pixel may be sunlit rock."""
     sure = valid_s & (lo > sure_llr) & (tex < 0)
     if np.count_nonzero(sure) < min_sure:
         return np.zeros_like(valid_s)
-    return valid_s & (tex > 0) & (lo > min_llr) & (gray_s > np.median(gray_s[sure]))
+    # the 10th percentile, not the median: the clear sky darkens towards the horizon, and a
+    # cloud's soft lower fringe mixes with that darker sky
+    brighter = np.all(rgb_s > np.percentile(rgb_s[sure], sky_q, axis=0), axis=-1)
+    return valid_s & (tex > 0) & (lo > min_llr) & brighter
 
 
 def _resolve_model(model):
@@ -733,7 +737,8 @@ def _detect_dp(img, valid, opt: DpOptions, model=None):
         if region == "both":
             tex = _texture_region(gray_s, valid_s, opt)
             if opt.cloud_llr > 0:
-                tex = np.where(_cloud_like(tex, lo_s, gray_s, valid_s, opt.cloud_llr), 0.0, tex)
+                rgb_s = _downscale(np.asarray(img[..., :3], np.float32), f)
+                tex = np.where(_cloud_like(tex, lo_s, rgb_s, valid_s, opt.cloud_llr), 0.0, tex)
             d = opt.w_model * d + tex
     elif region != "texture":
         raise ParameterError(f"unknown region term {opt.region!r}: choose 'model' or 'texture'")
