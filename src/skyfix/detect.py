@@ -17,7 +17,9 @@ Two detectors share one exact dynamic-programming kernel (:func:`_dp_solve`, num
     they look: a texture likelihood ratio (the sky is smooth, terrain is not) plus ``w_model``
     times the log-odds of a small learned sky-vs-terrain classifier (:mod:`skyfix.skymodel`,
     trained by ``scripts/train_sky_model.py`` on the dev mosaics; prefix sums make the cost of
-    every row O(1)). Each column also
+    every row O(1)). A textured pixel that the classifier calls sky and that is brighter than the
+    clear sky in every colour channel is taken for cloud, and its texture counts for neither
+    (``cloud_llr``). Each column also
     has an explicit *no-skyline* state whose cost is that of calling the whole column terrain (or
     the whole column sky) plus ``none_cost``; switching between it and the skyline costs
     ``switch_cost``. The exact optimum is found on the working copy, then each column is refined
