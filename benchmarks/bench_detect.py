@@ -2,7 +2,9 @@
 
 Prints per image and overall: mean absolute row error [px] over columns where truth and detection
 both have a skyline, share within 3 px and 10 px, false-skyline and missed-skyline rates over
-valid columns, and milliseconds per megapixel (wall time on this machine: noisy when shared).
+valid columns, and milliseconds per megapixel (wall time on this machine: noisy when shared);
+per set, how the detected columns fare by confidence bin (share within 3 px, share false); then
+each dev image resampled to 4 MP, timed against the target of 1 s per 4-MP image.
 
     PYTHONPATH=src python benchmarks/bench_detect.py [--methods dp,bayes] [--data DIR]
         [--only NAME,...] [--set KEY=VALUE ...] [--cv [--cv-sim SIMS]] [--sim DIR]
@@ -15,6 +17,7 @@ held-out image is detected with that model. Slow (one training per image).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -51,7 +54,7 @@ HEADER = f"{'image':>10s} {'MAE px':>8s} {'<=3px%':>7s} {'<=10px%':>7s} {'false%
 def run_set(pairs, method, out=sys.stdout, per_image=True, models=None, title="", **options):
     """pairs: iterable of (name, image array, truth Skyline); models: optional {name: SkyModel}
     (held-out models for cross-validation). Returns (pooled score, ms/MP)."""
-    scores, t_tot, mp_tot = [], 0.0, 0.0
+    scores, t_tot, mp_tot, cols = [], 0.0, 0.0, []
     print(f"-- method {method} {title}", file=out)
     print(HEADER, file=out)
     for name, img, truth in pairs:
@@ -64,13 +67,63 @@ def run_set(pairs, method, out=sys.stdout, per_image=True, models=None, title=""
         mp = img.shape[0] * img.shape[1] / 1e6
         s = score_skyline(pred, truth)
         scores.append(s)
+        cols.append(_column_outcomes(pred, truth))
         t_tot += dt
         mp_tot += mp
         if per_image:
             print(_fmt(name, s, 1000 * dt / mp), file=out, flush=True)
     tot = combine_scores(scores)
     print(_fmt("ALL", tot, 1000 * t_tot / max(mp_tot, 1e-9)), file=out, flush=True)
+    if cols:
+        confidence_table(*map(np.concatenate, zip(*cols)), out=out)
     return tot, 1000 * t_tot / max(mp_tot, 1e-9)
+
+
+def _column_outcomes(pred, truth):
+    """Per column where the detection has a skyline: its confidence, whether the truth has one
+    there, and whether the row is within 3 px of it."""
+    rows = np.asarray(pred.rows, float)
+    conf = (np.asarray(pred.confidence, float) if pred.confidence is not None
+            else np.ones(rows.size))
+    t = np.asarray(truth.rows, float)[: rows.size]
+    t = np.pad(t, (0, rows.size - t.size), constant_values=np.nan)
+    has = np.isfinite(rows)
+    return conf[has], np.isfinite(t[has]), np.abs(rows[has] - t[has]) <= 3.0
+
+
+def confidence_table(conf, truth_has, within3, out=sys.stdout,
+                     edges=(0.0, 0.3, 0.5, 0.7, 0.9, 1.0001)):
+    """Does the per-column confidence mean something? Per confidence bin of the detected
+    columns: how many, the share within 3 px of the truth and the share where the truth has no
+    skyline (false skyline)."""
+    print(f"   per-column confidence: {'bin':>11s} {'columns':>8s} {'<=3px%':>7s} {'false%':>7s}",
+          file=out)
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (conf >= lo) & (conf < hi)
+        if m.any():
+            print(f"   {'':22s} {lo:4.2f}-{min(hi, 1.0):4.2f} {m.sum():8d} "
+                  f"{100 * within3[m].mean():7.1f} {100 * (~truth_has[m]).mean():7.1f}",
+                  file=out, flush=True)
+
+
+def time_at_4mp(pairs, method, out=sys.stdout, **options):
+    """The target is stated per 4-megapixel image, and the dev mosaics are 0.9-2.1 MP: time each
+    one resampled to 4 MP (same aspect) and print the median and worst [s] against the 1 s
+    target. Returns the median [s]."""
+    import cv2
+
+    times = []
+    for _, img, _ in pairs:
+        f = math.sqrt(4e6 / (img.shape[0] * img.shape[1]))
+        big = cv2.resize(img, (round(img.shape[1] * f), round(img.shape[0] * f)),
+                         interpolation=cv2.INTER_LINEAR)
+        t0 = time.perf_counter()
+        detect_skyline(big, method=method, **options)
+        times.append(time.perf_counter() - t0)
+    med, worst = float(np.median(times)), float(np.max(times))
+    print(f"   {method}: per 4-MP image median {med:.2f} s, worst {worst:.2f} s over {len(times)} "
+          f"images (median / target of 1 s = {med:.2f})", file=out, flush=True)
+    return med
 
 
 def dev_pairs(folder):
@@ -141,6 +194,7 @@ def main(argv=None):
     if not args.no_all:
         for m in args.methods.split(","):
             run_set(pairs, m, title="(shipped model)", **(options if m == "dp" else {}))
+            time_at_4mp(pairs, m, **(options if m == "dp" else {}))
     if args.cv:
         sim_dirs = sorted(p for p in Path(args.cv_sim).iterdir() if p.is_dir()) if args.cv_sim else []
         models = loo_models(folder, [p[0] for p in pairs], sim_dirs)
