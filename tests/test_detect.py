@@ -376,6 +376,27 @@ def test_skyline_under_a_cloud():
     assert np.mean(err <= 3) <= 0.1
 
 
+def test_cloud_rule_needs_a_representative_clear_sky():
+    """The cloud rule compares a pixel with the smooth ("unmistakable") sky. When that is a small
+    remnant of what the classifier calls sky, it stands down: the remnant is the dark corner of a
+    wide field's sky, and sunlit ground is brighter than it in every channel."""
+    from skyfix.detect import _cloud_like
+
+    h, w = 60, 80
+    valid = np.ones((h, w), bool)
+    lo = np.full((h, w), 3.0)                    # the classifier: all sky
+    rgb = np.full((h, w, 3), 120.0, np.float32)  # clear sky level
+    tex = np.full((h, w), -0.5)                  # smooth
+    tex[:, 40:] = 0.5                            # textured right half ...
+    rgb[:, 40:] = 200.0                          # ... brighter in every channel: cloud-like
+    got = _cloud_like(tex, lo, rgb, valid, 1.0, min_share=0.4)
+    assert got[:, 40:].all() and not got[:, :40].any()   # smooth sky is half of the sky
+    tex[:, 20:] = 0.5                                     # now the smooth sky is a quarter
+    rgb[:, 20:40] = 125.0                                 # (textured sky just above its level)
+    assert not _cloud_like(tex, lo, rgb, valid, 1.0, min_share=0.4).any()
+    assert _cloud_like(tex, lo, rgb, valid, 1.0, min_share=0.0)[:, 20:].all()
+
+
 def test_training_recipe_learns_synthetic_sky():
     # train on synthetic images only, then classify a held-out one (no dev data needed)
     from skyfix.skymodel import fit_sky_model, training_pixels
