@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skyfix.detect import combine_scores, detect_skyline, score_skyline
+from skyfix.detect import combine_scores, detect_skyline, score_skyline, scored_columns
 from skyfix.formats import read_skyline_json
 
 #: ../shared/data beside the repository
@@ -80,14 +80,12 @@ def run_set(pairs, method, out=sys.stdout, per_image=True, models=None, title=""
 
 
 def _column_outcomes(pred, truth):
-    """Per column where the detection has a skyline: its confidence, whether the truth has one
-    there, and whether the row is within 3 px of it."""
-    rows = np.asarray(pred.rows, float)
+    """Per scored column (those of ``score_skyline``) where the detection has a skyline: its
+    confidence, whether the truth has one there, and whether the row is within 3 px of it."""
+    rows, t = np.asarray(pred.rows, float), np.asarray(truth.rows, float)
     conf = (np.asarray(pred.confidence, float) if pred.confidence is not None
             else np.ones(rows.size))
-    t = np.asarray(truth.rows, float)[: rows.size]
-    t = np.pad(t, (0, rows.size - t.size), constant_values=np.nan)
-    has = np.isfinite(rows)
+    has = np.isfinite(rows) & scored_columns(pred, truth)
     return conf[has], np.isfinite(t[has]), np.abs(rows[has] - t[has]) <= 3.0
 
 

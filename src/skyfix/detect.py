@@ -985,6 +985,20 @@ def detect_skyline(image, *, mask=None, method: str = "dp", name: str = "", mode
 
 # --- scoring -------------------------------------------------------------------------------------
 
+def scored_columns(pred: Skyline, truth: Skyline) -> np.ndarray:
+    """The columns a detection is scored on (bool): ``truth.valid``, else ``pred.valid``, else
+    all. Raises :class:`ParameterError` when the two skylines differ in width."""
+    if pred.rows.shape != truth.rows.shape:
+        raise ParameterError(
+            f"detected skyline has {pred.rows.size} columns, the truth {truth.rows.size}: "
+            "score the same image")
+    if truth.valid is not None:
+        return np.asarray(truth.valid, bool)
+    if pred.valid is not None:
+        return np.asarray(pred.valid, bool)
+    return np.ones(truth.rows.size, bool)
+
+
 def score_skyline(pred: Skyline, truth: Skyline, *, tol_px: tuple[float, float] = (3.0, 10.0)) -> dict:
     """Score a detected skyline against the truth (``shared/data/README.md``).
 
@@ -993,17 +1007,7 @@ def score_skyline(pred: Skyline, truth: Skyline, *, tol_px: tuple[float, float] 
     columns), ``false_rate`` (share of valid columns where a skyline is claimed but none is
     there), ``missed_rate`` (a skyline is there but none claimed), and the column counts.
     """
-    if pred.rows.shape != truth.rows.shape:
-        raise ParameterError(
-            f"detected skyline has {pred.rows.size} columns, the truth {truth.rows.size}: "
-            "score the same image")
-    n = truth.rows.size
-    if truth.valid is not None:
-        valid = np.asarray(truth.valid, bool)
-    elif pred.valid is not None:
-        valid = np.asarray(pred.valid, bool)
-    else:
-        valid = np.ones(n, bool)
+    valid = scored_columns(pred, truth)
     pt = np.isfinite(pred.rows) & valid
     tt = np.isfinite(truth.rows) & valid
     both = pt & tt
