@@ -219,6 +219,38 @@ def test_short_isolated_runs_are_dropped():
     assert np.all(conf[np.isnan(rows)] == 0) and np.all(conf[10:22] == 0.8)
 
 
+def test_weak_runs_survive_only_as_a_skylines_continuation():
+    from skyfix.detect import _drop_unanchored_runs
+
+    rows = np.full(2000, np.nan)
+    conf = np.zeros(2000)
+    spans = {(0, 200): 0.8,      # confident: an anchor
+             (230, 260): 0.2,    # weak, 30 columns from the anchor: kept
+             (900, 930): 0.25,   # weak, alone (640 and 370 columns from the others): dropped
+             (1300, 1600): 0.2}  # weak but 15 % of the width: an anchor by itself
+    for (a, b), c in spans.items():
+        rows[a:b] = 40.0
+        conf[a:b] = c
+    _drop_unanchored_runs(rows, conf, 0.5, 300, 200)
+    kept = np.flatnonzero(np.isfinite(rows))
+    assert kept.tolist() == [*range(0, 200), *range(230, 260), *range(1300, 1600)]
+    assert np.all(conf[900:930] == 0) and np.all(conf[230:260] == 0.2)
+    empty = np.full(10, np.nan)
+    _drop_unanchored_runs(empty, np.zeros(10), 0.5, 3, 2)  # no run at all: nothing to do
+    assert np.isnan(empty).all()
+
+
+@pytest.mark.shared_data
+def test_no_slivers_along_a_hazy_mountains_foot():
+    # 432_2: Mount Sharp's hazy flank fills the top of the mosaic; the skyline is out of frame
+    # in most columns. Without the run hysteresis, 14 columns (276 with a model that did not
+    # see this image) of short weak runs along the flank's foot came out as skyline
+    img, truth = _dev_case("432_2")
+    s = score_skyline(detect_skyline(img), truth)
+    assert s["n_false"] == 0
+    assert score_skyline(detect_skyline(img, anchor_conf=0), truth)["n_false"] > 0
+
+
 def test_bad_input():
     with pytest.raises(ParameterError, match="method"):
         detect_skyline(np.zeros((50, 50), np.uint8) + 9, method="nope")
