@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skyfix.detect import combine_scores, detect_skyline, score_skyline, scored_columns
+from skyfix.detect import DpOptions, combine_scores, detect_skyline, score_skyline, scored_columns
 from skyfix.formats import read_skyline_json
 
 #: ../shared/data beside the repository
@@ -180,8 +180,12 @@ def main(argv=None):
     args = ap.parse_args(argv)
     options = {}
     for kv in args.set:
-        k, v = kv.split("=", 1)
-        options[k] = type(getattr(__import__("skyfix.detect").detect.DpOptions(), k))(v)
+        k, _, v = kv.partition("=")
+        if not hasattr(DpOptions(), k):
+            raise SystemExit(f"--set {kv}: no dp option {k!r} (see skyfix.detect.DpOptions)")
+        kind = type(getattr(DpOptions(), k))
+        # bool("False") is True: booleans are spelt out
+        options[k] = v.lower() in ("1", "true", "yes") if kind is bool else kind(v)
     folder = Path(args.data)
     if not folder.is_dir():
         raise SystemExit(f"no dev set at {folder}")

@@ -262,6 +262,22 @@ def test_bad_input():
         detect_skyline(np.ones((50, 50), np.uint8), bogus=1)
 
 
+@pytest.mark.parametrize("method, option, value, says", [
+    ("dp", "anchor_gap", -0.1, ">= 0"),          # would link nothing, silently
+    ("dp", "w_grad", float("nan"), "finite"),
+    ("dp", "min_confidence", 1.5, r"\[0, 1\]"),  # would drop every column, silently
+    ("dp", "work_pixels", 0, ">= 1"),
+    ("dp", "min_run", 2.5, "whole number"),
+    ("dp", "no_data_black", "yes", "True or False"),
+    ("bayes", "window", 0, ">= 1"),
+    ("bayes", "seed", -3, ">= 0"),
+    ("bayes", "jump_cost", -1.0, ">= 0"),
+])
+def test_options_out_of_range_are_refused_by_name(method, option, value, says):
+    with pytest.raises(ParameterError, match=f"{option}=.*{says}"):
+        detect_skyline(np.ones((50, 50), np.uint8), method=method, **{option: value})
+
+
 def test_score_skyline_known_values():
     truth = Skyline(rows=np.array([10.0, 10.0, np.nan, np.nan, 20.0, 5.0]), width=6, height=30,
                     valid=np.array([True, True, True, True, True, False]))

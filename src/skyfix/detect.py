@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numba
 import numpy as np
@@ -210,6 +210,38 @@ class BayesOptions:
 
 
 PRESETS = {"dp": DpOptions(), "bayes": BayesOptions()}
+
+# Ranges the options must lie in. The kernels do not check them, and most wrong values would give
+# a quiet nonsense answer rather than a crash (a negative weight rewards an edge-free skyline, a
+# gap of -0.1 links nothing), so they are refused up front, naming the option.
+_AT_LEAST_ONE = {"work_pixels", "model_pixels", "window", "max_iter", "n_train"}
+_FRACTIONS = {"min_confidence", "anchor_conf", "anchor_gap", "anchor_len", "cloud_sure_share"}
+_CHOICES = {"region": ("both", "model", "texture"), "init": ("prior", "model")}
+
+
+def _check_options(opt) -> None:
+    """Raise :class:`ParameterError` naming the first option of ``opt`` out of its range."""
+    for f in fields(opt):
+        name, v = f.name, getattr(opt, f.name)
+        if name in _CHOICES:
+            if v not in _CHOICES[name]:
+                raise ParameterError(f"option {name}={v!r}: choose one of {', '.join(_CHOICES[name])}")
+        elif f.type in ("bool", bool):
+            if not isinstance(v, (bool, np.bool_)):
+                raise ParameterError(f"option {name}={v!r}: give True or False")
+        elif f.type in ("int", int):
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+                raise ParameterError(f"option {name}={v!r}: give a whole number")
+            low = 1 if name in _AT_LEAST_ONE else 0
+            if v < low:
+                raise ParameterError(f"option {name}={v}: must be >= {low}")
+        else:
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+                raise ParameterError(f"option {name}={v!r}: give a number")
+            if not np.isfinite(v) or v < 0:
+                raise ParameterError(f"option {name}={v}: must be a finite number >= 0")
+            if name in _FRACTIONS and v > 1:
+                raise ParameterError(f"option {name}={v}: must be a fraction in [0, 1]")
 
 
 # --- the DP kernel --------------------------------------------------------------------------------
@@ -1014,6 +1046,7 @@ def detect_skyline(image, *, mask=None, method: str = "dp", name: str = "", mode
         opt = replace(base, **options)
     except TypeError as e:
         raise ParameterError(f"bad option for method {method!r}: {e}") from None
+    _check_options(opt)
     img, _, _ = _as_gray_rgb(image)
     valid = _valid_mask(img, mask, opt.no_data_black)
     H, W = img.shape[:2]
