@@ -333,19 +333,24 @@ def _dev_case(name):
 def test_real_mosaic_with_sky(name, method):
     img, truth = _dev_case(name)
     s = score_skyline(detect_skyline(img, method=method), truth)
-    # measured: 0.3-0.6 px mean error, >= 95 % within 3 px, either method (bench_detect.py);
-    # bayes was 8-10 px off before its boundary term and row-wise edge density
-    assert s["mean_abs_err_px"] <= 2.0
-    assert s["within_3px"] >= 0.9
+    # measured: 0.33-0.61 px mean error, 95.6-100 % within 3 px, no false column, either method
+    # (the shipped sky model saw these images in training: the held-out figures are
+    # bench_detect.py --cv's); bayes was 8-10 px off before its boundary term and row-wise edge
+    # density. The false-skyline bound is the project's requirement on the dev set
+    assert s["mean_abs_err_px"] <= 1.0
+    assert s["within_3px"] >= 0.93
     # bayes leaves more columns unknown where the edge is faint (412_1: 6.2 % missed)
-    assert s["false_rate"] <= 0.2 and s["missed_rate"] <= (0.05 if method == "dp" else 0.1)
+    assert s["false_rate"] <= 0.02 and s["missed_rate"] <= (0.05 if method == "dp" else 0.1)
 
 
 @pytest.mark.shared_data
-def test_real_mosaic_without_sky():
+@pytest.mark.parametrize("method", METHODS)
+def test_real_mosaic_without_sky(method):
+    # 385_1 looks down at the ground: no column has a skyline (measured: none found, either method)
     img, truth = _dev_case("385_1")
-    sk = detect_skyline(img)
-    assert np.isfinite(sk.rows).mean() <= 0.05
+    assert not np.isfinite(truth.rows).any()
+    s = score_skyline(detect_skyline(img, method=method), truth)
+    assert s["false_rate"] <= 0.02
 
 
 # --- the learned sky classifier (region term of dp) ----------------------------------------------
