@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from skyfix.camera import Camera, camera_from_fov, direction_to_az_el, get_camera, r_world_cam
+from skyfix.camera import (Camera, az_el_to_direction, camera_from_fov, direction_to_az_el, get_camera,
+                           r_world_cam)
 from skyfix.cli.main import cli
 from skyfix.dem import Dem, write_dem
 from skyfix.errors import OutputExistsError, OutsideDemError, ParameterError
@@ -410,6 +411,170 @@ def test_every_condition_renders(hills, tmp_path):
         out = simulate_acquisition(hills, Truth(2400.0, 2400.0, 0.0), tmp_path / name, camera=cam,
                                    frames=1, conditions=name, planet=planet, seed=1)
         assert (out / "frame_000.png").is_file()
+
+
+# Each condition against the same frame without it (same seed, pose and sun: the sensor noise
+# draws are the same too, so unchanged pixels come out identical).
+
+COND_CAM = camera_from_fov(200, 150, 60.0)
+
+
+def render_frame(dem, truth, out, conditions=None, cam=COND_CAM, **kw):
+    """One frame: (RGB as float, terrain skyline truth rows, acquisition folder)."""
+    import cv2
+
+    out = simulate_acquisition(dem, truth, out, camera=cam, frames=1, conditions=conditions,
+                               seed=1, **kw)
+    rgb = cv2.imread(str(out / "frame_000.png"))[..., ::-1].astype(float)
+    return rgb, read_skyline_json(out / "frame_000.skyline.json").rows, out
+
+
+def band(rows, lo, hi, height=COND_CAM.height):
+    """Pixels lo..hi rows below each column's skyline (negative: above it)."""
+    v = np.arange(height)[:, None]
+    r = np.nan_to_num(rows, nan=-1e6)[None, :]
+    return (v >= r + lo) & (v <= r + hi)
+
+
+def test_dust_hazes_distant_terrain_towards_the_sky(hills, tmp_path):
+    """Dust shortens the haze distance (distant terrain takes the horizon sky's colour, near
+    terrain keeps its own) and flattens the sky towards the dust colour (a less blue sky)."""
+    t = Truth(2400.0, 2400.0, 200.0)
+    m = {}
+    for c in (None, "dust:0.5", "dust:1"):
+        rgb, rows, _ = render_frame(hills, t, tmp_path / str(c), c, tilt_deg=10)
+        g = rgb.mean(axis=2)
+        sky, far = g[band(rows, -12, -4)].mean(), g[band(rows, 4, 12)].mean()
+        assert np.nanmin(rows) > 40 and np.nanmax(rows) < 110  # the set-up: near terrain below
+        near = g[-10:].mean()  # the frame's bottom rows: ground tens of metres away
+        blue = (rgb[..., 2] - rgb[..., 0])[band(rows, -1000, -4)].mean()
+        m[c] = dict(sky=sky, far=far, near=near, contrast=(sky - far) / (sky + far), blue=blue)
+    n, d5, d1 = m[None], m["dust:0.5"], m["dust:1"]
+    # Contrast across the skyline falls with strength (measured 0.29, 0.25, 0.15).
+    assert n["contrast"] > d5["contrast"] + 0.02 and d5["contrast"] > d1["contrast"] + 0.05
+    # The terrain just below the skyline, kilometres away, brightens towards the sky
+    # (measured 110 -> 123 -> 151 of 255) ...
+    assert d5["far"] > n["far"] + 6 and d1["far"] > d5["far"] + 15
+    assert d1["far"] < d1["sky"]
+    # ... the near ground hardly at all: the haze grows with distance, it is no global brightening.
+    assert abs(d1["near"] - n["near"]) < 2
+    # The sky whitens towards the dust colour (blue minus red measured 53, 34, 12).
+    assert n["blue"] > d5["blue"] + 10 and d5["blue"] > d1["blue"] + 10
+
+
+def test_clouds_texture_the_sky_and_leave_the_terrain(hills, tmp_path):
+    import cv2
+
+    t = Truth(2400.0, 2400.0, 200.0)
+    res = {}
+    for c in (None, "clouds:0.5", "clouds:1"):
+        rgb, rows, _ = render_frame(hills, t, tmp_path / str(c), c, tilt_deg=10)
+        res[c] = rgb.mean(axis=2), rows
+    g0, rows = res[None]
+    sky, ground = band(rows, -1000, -4), band(rows, 4, 1000)
+    assert sky.sum() > 5000 and ground.sum() > 5000
+    changed = {}
+    for c in ("clouds:0.5", "clouds:1"):
+        g = res[c][0]
+        # Terrain below the skyline: the very same pixels (the noise draws are the same too).
+        np.testing.assert_array_equal(g[ground], g0[ground])
+        # Local texture in the sky: high-passed std measured 1.4 clear, 2.9 and 2.6 cloudy.
+        hp0, hp = (im - cv2.blur(im, (7, 7)) for im in (g0, g))
+        assert hp[sky].std() > 1.5 * hp0[sky].std()
+        changed[c] = np.mean(np.abs(g - g0)[sky] > 8)
+    # A stronger condition covers more of the sky (measured 68 % and 91 % of sky pixels).
+    assert 0.3 < changed["clouds:0.5"] < changed["clouds:1"] - 0.1
+
+
+def test_glare_brightens_towards_the_sun(hills, tmp_path):
+    """Veiling glare falls off with the angle from the sun. The sun sits 8 deg behind a ridge
+    (skyline at 20 deg elevation at azimuth 156) so that the pixels around it are unsaturated
+    terrain; the brightening is measured in linear units against the same frame without glare."""
+    t, sun, tilt = Truth(2400.0, 2400.0, 156.0), (156.0, 12.0), 10.0
+    lin = {}
+    for c in (None, "glare:0.3", "glare:0.6"):
+        rgb, rows, _ = render_frame(hills, t, tmp_path / str(c), c, tilt_deg=tilt,
+                                    sun_az_deg=sun[0], sun_el_deg=sun[1])
+        lin[c] = (rgb.mean(axis=2) / 255.0) ** 2.2
+    vv, uu = np.mgrid[0:COND_CAM.height, 0:COND_CAM.width].astype(float)
+    d = COND_CAM.pixel_to_ray(uu, vv) @ r_world_cam(t.yaw_deg, 0, 0, 0, tilt).T
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    ang = np.degrees(np.arccos(np.clip(d @ az_el_to_direction(*sun), -1, 1)))
+    ground = band(rows, 4, 1000)
+    rings = [(0, 3), (3, 6), (6, 10), (10, 20), (20, 40)]
+    rise = {}
+    for c in ("glare:0.3", "glare:0.6"):
+        diff = lin[c] - lin[None]
+        rise[c] = np.array([diff[ground & (ang >= lo) & (ang < hi)].mean() for lo, hi in rings])
+        # Brighter everywhere, most near the sun and less with every ring outwards
+        # (measured 0.26, 0.12, 0.075, 0.036, 0.015 at strength 0.3).
+        assert np.all(rise[c] > 0) and np.all(np.diff(rise[c]) < 0)
+        assert rise[c][0] > 8 * rise[c][-1]
+    # Strength scales the veil: twice the strength, about twice the added light (unsaturated).
+    np.testing.assert_allclose(rise["glare:0.6"][1:] / rise["glare:0.3"][1:], 2.0, rtol=0.15)
+
+
+def test_glare_puts_the_sun_in_view(hills, tmp_path):
+    cam = camera_from_fov(64, 48, 60.0)
+    t = Truth(2400.0, 2400.0, 40.0)
+    for c in (None, "glare:0.5"):
+        out = simulate_acquisition(hills, t, tmp_path / str(c), camera=cam, frames=1, conditions=c,
+                                   seed=3)
+        sun = json.loads((out / "acquisition.json").read_text())["simulation"]["sun"]
+        d_cam = r_world_cam(t.yaw_deg, 0, 0, 0, 0).T @ az_el_to_direction(sun["azimuth_deg"],
+                                                                          sun["elevation_deg"])
+        u, v, front = cam.ray_to_pixel(d_cam)
+        in_view = bool(front and 0 <= u < cam.width and 0 <= v < cam.height)
+        assert in_view == (c is not None), (c, sun)
+
+
+def test_blur_softens_the_skyline_but_not_its_truth(hills, tmp_path):
+    t = Truth(2400.0, 2400.0, 200.0)
+    steepest, truth = {}, {}
+    for c in (None, "blur:0.5", "blur:1"):
+        rgb, rows, _ = render_frame(hills, t, tmp_path / str(c), c, tilt_deg=10)
+        # The largest vertical step per column (the skyline edge), median over columns.
+        steepest[c] = np.median(np.abs(np.diff(rgb.mean(axis=2), axis=0)).max(axis=0))
+        truth[c] = rows
+    # measured 46, 15, 10 grey levels per pixel
+    assert steepest["blur:0.5"] < 0.5 * steepest[None]
+    assert steepest["blur:1"] < 0.8 * steepest["blur:0.5"]
+    for c in ("blur:0.5", "blur:1"):
+        np.testing.assert_array_equal(truth[c], truth[None])
+
+
+def test_blur_streak_is_horizontal(tmp_path):
+    """Motion blur is a horizontal streak on top of (isotropic) defocus: it widens a slanted
+    edge more than a level one. A flat plain's horizon, level and then rolled 40 deg, measured
+    as the edge's width across it (step over steepest slope of the mean profile)."""
+    dem = Dem.from_array(np.zeros((201, 201)), 20.0)
+    cam = COND_CAM
+
+    def edge_width(rgb, rows):
+        g = (rgb.mean(axis=2) / 255.0) ** 2.2
+        c = np.arange(cam.width)
+        s, r0 = np.polyfit(c[np.isfinite(rows)], rows[np.isfinite(rows)], 1)
+        vv, uu = np.mgrid[0:cam.height, 0:cam.width]
+        n = (vv - (s * uu + r0)) / np.hypot(1.0, s)  # signed distance below the horizon [px]
+        inner = (uu > 10) & (uu < cam.width - 10) & (vv > 10) & (vv < cam.height - 10) & (np.abs(n) < 16)
+        k = np.round(n[inner]).astype(int) + 16
+        prof = np.bincount(k, g[inner]) / np.bincount(k)
+        return s, (prof[0] - prof[-1]) / np.max(-np.diff(prof))
+
+    w = {}
+    for c in (None, "blur:0.5", "blur:1"):
+        for roll in (0.0, 40.0):
+            rgb, rows, _ = render_frame(dem, Truth(2000.0, 2000.0, 0.0, 0.0, roll),
+                                        tmp_path / f"{c}_{roll}", c, cam=cam)
+            s, w[c, roll] = edge_width(rgb, rows)
+            assert abs(np.degrees(np.arctan(s)) + roll) < 1.0  # the set-up: horizon tilted by roll
+    # Blur widens the level edge (measured 1.4, 5.0, 9.0 px) ...
+    assert w["blur:0.5", 0.0] > 2.5 * w[None, 0.0] and w["blur:1", 0.0] > 1.5 * w["blur:0.5", 0.0]
+    # ... and the slanted one further: a horizontal streak of sigma s adds s sin(40 deg) across
+    # it, in quadrature (measured 6.4 vs 5.0 and 11.4 vs 9.0 px; defocus alone gives 1.02x).
+    for c in ("blur:0.5", "blur:1"):
+        assert w[c, 40.0] > 1.15 * w[c, 0.0]
+        assert w[c, 40.0] ** 2 - w[c, 0.0] ** 2 > 5 * abs(w[None, 40.0] ** 2 - w[None, 0.0] ** 2)
 
 
 def test_sets_are_deterministic_and_do_what_they_say(hills):
