@@ -250,17 +250,50 @@ def test_verify_passes_a_good_store_and_catches_corrupt_and_missing_blocks(dem_p
 
 
 def test_verify_sample_catches_a_store_that_disagrees_with_the_dem(dem_path, clean_db, tmp_path):
-    # A consistent store (checksums match) whose skylines are not those of this DEM.
-    other = tmp_path / "other.tif"
-    d = load_dem(dem_path)
-    write_dem(other, Dem(d.z + 0.0, d.x0, d.y0, d.dx, d.dy, d.crs_wkt))
+    """A consistent store (every block matches its marker's checksums) built from this very DEM
+    (same file, same checksum) whose skylines are not the DEM's: only the re-render of sampled
+    positions can tell."""
+    import hashlib
+    import shutil
+
+    import zarr
+
     rep = verify_database(clean_db, dem=dem_path, samples=8)
     assert rep.ok and rep.samples == 8 and rep.sample_max_error_deg <= SCALE_DEG / 2 + 1e-4
+
+    bad = tmp_path / "shifted.zarr"
+    shutil.copytree(clean_db, bad)
+    g = zarr.open_group(str(bad), mode="r+")
+    el = np.asarray(g["elevation"][:])
+    k = 30  # every stored skyline raised by 30 quantisation steps = 0.3 deg
+    g["elevation"][:] = np.where(el == MISSING, el, el + k).astype(el.dtype)
+    for mp in (bad / MARKER_DIR).glob("r*_c*.json"):  # re-sign the blocks: the checksums stay consistent
+        m = json.loads(mp.read_text())
+        blk = np.asarray(g["elevation"][m["row0"]:m["row0"] + m["rows"], m["col0"]:m["col0"] + m["cols"]])
+        m["sha256"]["elevation"] = hashlib.sha256(np.ascontiguousarray(blk).tobytes()).hexdigest()
+        mp.write_text(json.dumps(m))
+    rep = verify_database(bad, dem=dem_path, samples=8)
+    assert not rep.corrupt and not rep.missing  # past the block checksums and the DEM checksum
+    assert not rep.ok and rep.samples == 8 and len(rep.sample_failures) == 8
+    assert all("stored skyline differs from a re-render" in f for f in rep.sample_failures)
+    # the error is the shift, give or take the original rounding (<= half a step)
+    assert abs(rep.sample_max_error_deg - k * SCALE_DEG) <= SCALE_DEG / 2 + 1e-4
+
+    # A DEM file with other heights stops at the checksum gate, before any re-render.
+    d = load_dem(dem_path)
     z = d.z.copy()
     z[:, :10] += 50  # a new western ridge changes the skylines
+    other = tmp_path / "other.tif"
     write_dem(other, Dem(z, d.x0, d.y0, d.dx, d.dy, d.crs_wkt))
     rep = verify_database(clean_db, dem=other, samples=8)
-    assert not rep.ok and "not the DEM" in rep.sample_failures[0]
+    assert not rep.ok and rep.samples == 0 and len(rep.sample_failures) == 1
+    assert "not the DEM this database was built from" in rep.sample_failures[0]
+    # The same heights passed as a Dem claiming the build's checksum get past the gate, and the
+    # re-render finds skylines that the ridge changed.
+    forged = Dem(z, d.x0, d.y0, d.dx, d.dy, d.crs_wkt, checksum=d.checksum)
+    rep = verify_database(clean_db, dem=forged, samples=8)
+    assert not rep.ok and rep.samples == 8 and rep.sample_max_error_deg > 1.0
+    assert rep.sample_failures and all("differs from a re-render" in f for f in rep.sample_failures)
 
 
 # --- info and errors -------------------------------------------------------------------------------

@@ -6,8 +6,9 @@ import pytest
 from skyfix.dem import Dem
 from skyfix.formats import Profile
 from skyfix.match import MatchConfig, MemoryStore
-from skyfix.pose import (PoseConfig, body_profile, estimate_heading, fit_attitude, locate,
-                         relevel, synthetic_profile)
+from skyfix.pose import (FEATURES, MODEL_PATH, SCENARIOS, PoseConfig, body_profile,
+                         confidence_from_features, estimate_heading, fit_attitude, locate, relevel,
+                         synthetic_profile)
 
 
 def _bumpy_dem():
@@ -58,9 +59,16 @@ def test_off_grid_position_refined_from_the_dem(world):
     tx, ty, th = 733.3, 871.9, 123.4
     prof = synthetic_profile(dem, tx, ty, th, noise_deg=0.05, rng=3)
     fix = locate(prof, db=st, dem=dem, config=CFG)
-    assert np.hypot(fix.x - tx, fix.y - ty) < 3.0
+    err = np.hypot(fix.x - tx, fix.y - ty)
+    assert err < 3.0
     assert abs(_ang(fix.heading_deg - th)) < 0.5
-    assert fix.position_sigma_m > 0 and np.isfinite(fix.heading_sigma_deg)
+    # the 1-sigma covers the true error (measured 0.03 m, sigma 0.51 m) and is not vacuous
+    assert err <= 3 * fix.position_sigma_m < 6.0
+    assert 0 < fix.heading_sigma_deg < 0.2  # measured 0.008 deg (heading scatter: own test)
+    # a distinctive horizon, right fix: the calibrated model says so (measured 0.996), and the
+    # value is the model's, not the flat-horizon cap's
+    assert fix.confidence >= 0.9
+    assert fix.confidence == pytest.approx(confidence_from_features(fix.features, key="locate"))
     d = fix.to_dict()
     assert set(d) >= {"x", "y", "crs", "lon", "lat", "heading_deg", "pitch_deg", "roll_deg",
                       "position_sigma_m", "heading_sigma_deg", "confidence", "score", "candidates"}
@@ -72,7 +80,9 @@ def test_prior_area_without_database(world):
     tx, ty = 812.6, 701.2
     prof = synthetic_profile(dem, tx, ty, 300.0, noise_deg=0.05, rng=4)
     fix = locate(prof, dem=dem, prior_xy=(tx + 9.0, ty - 7.0), prior_radius_m=20.0, config=CFG)
-    assert np.hypot(fix.x - tx, fix.y - ty) < 1.5
+    err = np.hypot(fix.x - tx, fix.y - ty)
+    assert err < 1.5
+    assert err <= 3 * fix.position_sigma_m < 2.0  # measured 0.11 m, sigma 0.09 m
 
 
 def test_tilted_query_in_a_prior_area_lands_within_decimetres(world):
@@ -140,7 +150,41 @@ def test_heading_only_mode(world):
     prof = synthetic_profile(dem, 650.0, 950.0, 222.0, 2.0, -1.0, noise_deg=0.1, rng=6)
     hf = estimate_heading(prof, dem, 653.0, 946.0, 226.0, window_deg=10.0)
     assert abs(_ang(hf.heading_deg - 222.0)) < 1.0
-    assert hf.heading_sigma_deg > 0
+    assert 0 < hf.heading_sigma_deg < 0.5  # measured 0.027 (heading scatter: own test)
+    assert hf.confidence >= 0.9  # measured 0.999
+    assert hf.confidence == pytest.approx(confidence_from_features(hf.features, key="heading"))
+    # Wrong answers, through the model (relief 7.6 deg, far above the flat-horizon cap's 2x noise):
+    # the rough position 150 m off (fix 14 deg off, measured confidence 0.02), and the truth
+    # outside the window (prior 40 deg off: fix at the window's edge, 20 deg off, measured 0.08).
+    for x, y, h0 in ((800.0, 950.0, 226.0), (653.0, 946.0, 262.0)):
+        wrong = estimate_heading(prof, dem, x, y, h0, window_deg=10.0)
+        assert abs(_ang(wrong.heading_deg - 222.0)) > 5.0
+        assert wrong.confidence < 0.2
+
+
+def test_heading_sigma_matches_the_scatter_over_noise_draws(world):
+    """20 noise draws on one exact skyline at the true position: the reported 1-sigma heading is
+    the spread of the estimates (ratio measured 1.0-1.35), and their mean is the truth. The query
+    is a centred average of a 0.1 deg render over each 1 deg bin, built here (not with
+    synthetic_profile)."""
+    from skyfix.horizon import render_horizons
+
+    dem, _ = world
+    rng = np.random.default_rng(0)
+    for x, y, h, p, r, noise in ((650.0, 950.0, 222.0, 2.0, -1.0, 0.1),
+                                 (733.3, 871.9, 123.4, 0.0, 0.0, 0.3)):
+        w = render_horizons(dem, [x], [y], azimuth_bins=3600).elevation_deg[0]
+        sub = body_profile(w, h, p, r, n_bins=3600)
+        q0 = sub[(np.arange(360)[:, None] * 10 + np.arange(-4, 5)) % 3600].mean(axis=1)
+        err, sig = [], []
+        for _ in range(20):
+            q = q0 + rng.normal(0.0, noise, 360)
+            hf = estimate_heading(Profile(q, np.full(360, noise), "body"), dem, x, y, h + 3.0, 10.0)
+            err.append(_ang(hf.heading_deg - h))
+            sig.append(hf.heading_sigma_deg)
+        err, sig = np.array(err), float(np.median(sig))
+        assert 0.6 < np.std(err, ddof=1) / sig < 1.7
+        assert abs(err.mean()) < 3 * sig / np.sqrt(20) + 0.005  # measured 0.004 and 0.005 deg
 
 
 def test_featureless_horizon_gives_low_confidence():
@@ -150,6 +194,61 @@ def test_featureless_horizon_gives_low_confidence():
     q = np.full(360, 0.0) + np.random.default_rng(0).normal(0, 0.1, 360)
     fix = locate(Profile(q, np.full(360, 0.1), "body"), db=st, dem=dem, config=CFG)
     assert fix.confidence < 0.3
+
+
+def _logistic(model, feat):
+    """The confidence model written out: a logistic on standardised features, shifted by the
+    logit offset."""
+    z = model["intercept"] - model["logit_offset"]
+    for name, c, mu, sd in zip(model["features"], model["coef"], model["mean"], model["scale"]):
+        z += c * (feat[name] - mu) / sd
+    return 1.0 / (1.0 + np.exp(-z))
+
+
+def test_confidence_model_is_the_shipped_logistic_model():
+    import json
+    import math
+
+    shipped = json.loads(MODEL_PATH.read_text())
+    assert set(SCENARIOS) <= set(shipped)
+    # Hand-made feature vectors: a clear fix (values of a measured one), a wrong one (a measured
+    # 20 deg heading error), and per model points where the logit is 0 and 1 exactly.
+    good = dict(log_ratio=7.2, log_rms_over_noise=0.0, log_relief=1.9, observed_fraction=1.0,
+                log_sigma=-0.7, tilt_deg=0.0)
+    bad = dict(log_ratio=0.0, log_rms_over_noise=4.0, log_relief=2.0, observed_fraction=1.0,
+               log_sigma=-0.25, tilt_deg=1.0)
+    for key in SCENARIOS:
+        m = shipped[key]
+        assert tuple(m["features"]) == FEATURES
+        assert len(m["coef"]) == len(m["mean"]) == len(m["scale"]) == len(FEATURES)
+        assert all(sd > 0 for sd in m["scale"]) and "isotonic" not in m
+        at_mean = dict(zip(FEATURES, m["mean"]))  # z = intercept - offset exactly
+        assert confidence_from_features(at_mean, key=key) == pytest.approx(
+            1 / (1 + math.exp(-(m["intercept"] - m["logit_offset"]))), abs=1e-12)
+        # log_ratio where z = 0 (p = 1/2), then log_rms_over_noise moved to add exactly 1 to z
+        c, mu, sd = m["coef"], m["mean"], m["scale"]
+        half = dict(at_mean, log_ratio=mu[0] - (m["intercept"] - m["logit_offset"]) * sd[0] / c[0])
+        z_one = dict(half, log_rms_over_noise=mu[1] + sd[1] / c[1])
+        assert confidence_from_features(half, key=key) == pytest.approx(0.5, abs=1e-12)
+        assert confidence_from_features(z_one, key=key) == pytest.approx(1 / (1 + math.exp(-1)),
+                                                                          abs=1e-12)
+        for feat in (good, bad, z_one):
+            assert confidence_from_features(feat, key=key) == pytest.approx(
+                _logistic(m, feat), abs=1e-12)
+            # the model passed explicitly gives the same as the one loaded from the package
+            assert confidence_from_features(feat, shipped, key) == confidence_from_features(feat, key=key)
+        # a rival basin as good as the fix, or a residual far above the noise, lowers it
+        assert m["coef"][0] > 0 and m["coef"][1] < 0
+        assert confidence_from_features(good, key=key) > 0.8 > 0.2 > confidence_from_features(bad, key=key)
+    # Closed forms on a one-feature model: z = 1 + 0.5 (ln 3 - 1) / 0.5 = ln 3, minus the offset.
+    tiny = {"locate": {"features": ["log_ratio"], "coef": [0.5], "mean": [1.0], "scale": [0.5],
+                       "intercept": 1.0, "logit_offset": 0.0}}
+    feat = dict(good, log_ratio=math.log(3.0))
+    assert confidence_from_features(feat, tiny) == pytest.approx(0.75, abs=1e-12)
+    tiny["locate"]["logit_offset"] = math.log(3.0)
+    assert confidence_from_features(feat, tiny) == pytest.approx(0.5, abs=1e-12)
+    # Without a model: the uncalibrated fallback 0.5 (1 - 1/ratio), at most 0.5.
+    assert confidence_from_features(feat, {}) == pytest.approx(1 / 3, abs=1e-12)
 
 
 def test_cli_locate_and_heading_from_a_profile(world, tmp_path):
@@ -194,9 +293,12 @@ def test_tilted_query_with_zero_prior_is_located(world):
     tx, ty, th, p, r = 847.3, 766.1, 41.0, 8.0, -9.0
     prof = synthetic_profile(dem, tx, ty, th, p, r, noise_deg=0.1, rng=8)
     fix = locate(prof, db=st, dem=dem, config=CFG)
-    assert np.hypot(fix.x - tx, fix.y - ty) < 3.0
+    err = np.hypot(fix.x - tx, fix.y - ty)
+    assert err < 3.0
     assert abs(_ang(fix.heading_deg - th)) < 0.5
     assert abs(fix.pitch_deg - p) < 0.5 and abs(fix.roll_deg - r) < 0.5
+    assert err <= 3 * fix.position_sigma_m < 6.0  # measured 0.27 m, sigma 0.51 m
+    assert fix.confidence >= 0.9  # measured 0.984
 
 
 def test_residual_level_matches_the_simulated_noise_despite_outliers(world):
@@ -253,10 +355,12 @@ def test_false_fragment_that_misleads_the_database_search_is_left_out_on_retry(w
     once = locate(prof, db=st, dem=dem, config=replace(CFG, retry_below=0.0,
                                                        retry_rms_ratio=np.inf))
     assert np.hypot(once.x - tx, once.y - ty) > 100.0  # the failure the retry is for
+    assert once.confidence < 0.7  # 235 m off: measured 0.55 (no rival basin left, rms 17x noise)
     fix = locate(prof, db=st, dem=dem, config=CFG)
     assert np.hypot(fix.x - tx, fix.y - ty) < 1.0
     assert abs(_ang(fix.heading_deg - th)) < 0.3
     assert fix.score < 0.5 * once.score
+    assert fix.confidence >= 0.9  # measured 0.95
 
 
 def test_residual_correlation_length_of_white_and_ar1_noise():
