@@ -17,6 +17,10 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
@@ -520,20 +524,116 @@ def frame_pans(camera: Camera, frames: int | None = None, pan_start_deg: float |
     return [float(pan_start_deg + k * step) for k in range(n)]
 
 
-def _prepare_out(out, overwrite: bool) -> Path:
+def _check_out_folder(out, overwrite: bool) -> Path:
+    """Refuse an ``out`` that is a file, or a non-empty folder without ``overwrite``; touch nothing."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out} exists and is not a folder: choose another --out")
-    if out.is_dir() and any(out.iterdir()):
-        if not overwrite:
-            raise OutputExistsError(f"{out} is not empty: pass --overwrite to replace its contents")
-        # Remove what an earlier simulation wrote, so stale frames cannot linger.
-        for p in out.iterdir():
-            if p.is_file() and (p.suffix == ".png" or p.name.endswith(".skyline.json")
-                                or p.name in ("acquisition.json", "set.json")):
-                p.unlink()
-    out.mkdir(parents=True, exist_ok=True)
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise OutputExistsError(f"{out} is not empty: pass --overwrite to replace it")
     return out
+
+
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+#: renameat2(2) flag that swaps two paths in one step (Linux >= 3.15, most local filesystems)
+_RENAME_EXCHANGE = 2
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap the two existing paths ``a`` and ``b`` atomically; False where the system cannot."""
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd = -100  # paths relative to the current folder, as os.rename takes them
+    return renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE) == 0
+
+
+def _replace_folder(new: Path, out: Path) -> None:
+    """Put the finished folder ``new`` in the place of ``out`` (which may exist).
+
+    An atomic exchange where the filesystem offers one; else two renames, during which the old
+    folder is kept beside ``out`` and put back if the second fails: never a moment where the old
+    content is gone and the new one not yet in place.
+    """
+    if not out.exists():
+        os.rename(new, out)
+        return
+    if _exchange(new, out):
+        shutil.rmtree(new)  # holds the old content now
+        return
+    old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
+    os.rmdir(old)
+    os.rename(out, old)
+    try:
+        os.rename(new, out)
+    except BaseException:
+        os.rename(old, out)
+        raise
+    shutil.rmtree(old)
+
+
+@contextmanager
+def _staged_folder(out, overwrite: bool):
+    """Yield an empty hidden sibling of ``out`` to render into; it replaces ``out`` only when the
+    block succeeds, so a failure or a kill leaves any earlier ``out`` as it was."""
+    out = _check_out_folder(out, overwrite)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
+    try:
+        yield tmp
+        os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp makes it private; give it a plain mkdir's mode
+        _check_out_folder(out, overwrite)  # something may have appeared there meanwhile
+        _replace_folder(tmp, out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def check_seed(seed) -> int:
+    """A seed as numpy's generators take it: a whole number >= 0."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ParameterError(f"seed must be a whole number >= 0, got {seed!r}")
+    return int(seed)
+
+
+def check_render_options(*, mode: str, camera, camera_height_m: float, tilt_deg: float, planet, seed,
+                         frames: int | None = None, pan_start_deg: float | None = None,
+                         pan_step_deg: float | None = None, pano_size=(PANO_WIDTH, PANO_HEIGHT),
+                         vfov_deg: float = PANO_VFOV_DEG,
+                         elevation_top_deg: float = PANO_ELEVATION_TOP_DEG):
+    """Check the options an acquisition and a set share; returns (camera, planet, pans or None).
+
+    Called before any output is touched, so a refusal leaves nothing behind.
+    """
+    if mode not in ("frames", "panorama"):
+        raise ParameterError(f"unknown mode {mode!r}: use 'frames' or 'panorama'")
+    check_seed(seed)
+    if not (np.isfinite(camera_height_m) and camera_height_m >= 0):
+        raise ParameterError(f"camera height must be >= 0 m, got {camera_height_m}")
+    if not (np.isfinite(tilt_deg) and abs(tilt_deg) <= 90):
+        raise ParameterError(f"mast tilt must be within +-90 deg (up positive), got {tilt_deg}")
+    pl = get_planet(planet)
+    cam = get_camera(camera) if isinstance(camera, str) else camera
+    pans = None
+    if mode == "frames":
+        for name, v in (("pan start", pan_start_deg), ("pan step", pan_step_deg)):
+            if v is not None and not np.isfinite(v):
+                raise ParameterError(f"{name} must be a finite angle in degrees, got {v}")
+        pans = frame_pans(cam, frames, pan_start_deg, pan_step_deg)
+    else:
+        w, h = int(pano_size[0]), int(pano_size[1])
+        if w < 2 or h < 2:
+            raise ParameterError(f"panorama size must be at least 2 x 2 px, got {w} x {h}")
+        if not (np.isfinite(vfov_deg) and 0 < vfov_deg <= 180):
+            raise ParameterError(f"panorama vfov must be in (0, 180] deg, got {vfov_deg}")
+        if not np.isfinite(elevation_top_deg):
+            raise ParameterError(f"panorama top elevation must be finite, got {elevation_top_deg}")
+    return cam, pl, pans
 
 
 def _write_png(path: Path, rgb: np.ndarray) -> None:
@@ -577,7 +677,12 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
                          sun_az_deg: float | None = None, sun_el_deg: float | None = None) -> Path:
     """Render one acquisition into folder ``out`` and return it.
 
-    dem : the terrain; truth : rover position [m] and attitude (yaw, pitch, roll) [deg]
+    Every option is checked before ``out`` is touched; the acquisition is rendered into a hidden
+    sibling folder that takes ``out``'s place (with ``overwrite``: replaces it whole) only once
+    complete, so a refusal, a failure or a kill leaves an earlier ``out`` as it was.
+
+    dem : the terrain; truth : rover position [m] and attitude (yaw, pitch, roll) [deg]; the yaw
+        is written normalised to [0, 360) (400 -> 40)
     camera : preset name (``navcam``, ``wide``) or a :class:`Camera` (frames mode)
     mode : ``frames`` (mast frame set) or ``panorama`` (equirectangular, levelled in the body frame)
     frames, pan_start_deg, pan_step_deg : frame set (see :func:`frame_pans`) [deg]
@@ -586,41 +691,37 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
     planet : ``earth``, ``mars`` or a radius [m] (curvature, sky and soil colours)
     conditions : :class:`Conditions`, a dict or a string like ``"dust:0.5,rocks"``
     seed : makes the looks (sun, texture, noise, rocks) reproducible
-    attitude_prior : (pitch, roll) [deg] the inclinometer reports; default the true values
+    attitude_prior : (pitch, roll) [deg] the inclinometer reports, finite and within +-60; default
+        the true values
     pano_size, elevation_top_deg, vfov_deg : panorama size [px] and vertical extent [deg]
     sun_az_deg, sun_el_deg : [deg] sun direction; default drawn from ``seed`` (glare puts it in view)
     """
-    if mode not in ("frames", "panorama"):
-        raise ParameterError(f"unknown mode {mode!r}: use 'frames' or 'panorama'")
-    if not (np.isfinite(camera_height_m) and camera_height_m >= 0):
-        raise ParameterError(f"camera height must be >= 0 m, got {camera_height_m}")
-    for name, v in (("yaw", truth.yaw_deg), ("pitch", truth.pitch_deg), ("roll", truth.roll_deg)):
+    cam, pl, pans = check_render_options(
+        mode=mode, camera=camera, camera_height_m=camera_height_m, tilt_deg=tilt_deg, planet=planet,
+        seed=seed, frames=frames, pan_start_deg=pan_start_deg, pan_step_deg=pan_step_deg,
+        pano_size=pano_size, vfov_deg=vfov_deg, elevation_top_deg=elevation_top_deg)
+    for name, v in (("x", truth.x), ("y", truth.y), ("yaw", truth.yaw_deg), ("pitch", truth.pitch_deg),
+                    ("roll", truth.roll_deg)):
         if not np.isfinite(v):
-            raise ParameterError(f"{name} must be a finite angle in degrees, got {v}")
+            raise ParameterError(f"{name} must be a finite number, got {v}")
     if abs(truth.pitch_deg) > 60 or abs(truth.roll_deg) > 60:
         raise ParameterError("pitch and roll must be within +-60 deg for a rover on the ground")
-    if not (np.isfinite(tilt_deg) and abs(tilt_deg) <= 90):
-        raise ParameterError(f"mast tilt must be within +-90 deg (up positive), got {tilt_deg}")
-    pl = get_planet(planet)
+    truth = replace(truth, yaw_deg=normalise_yaw(truth.yaw_deg))
+    prior = (truth.pitch_deg, truth.roll_deg) if attitude_prior is None else attitude_prior
+    prior = check_attitude_prior(prior)
     planet_key = pl.name if pl.name in ("earth", "mars") else "earth"
     cond = _conditions(conditions)
     if cond.clouds > 0 and planet_key != "earth":
         raise ParameterError("the clouds condition is for Earth only: drop it or use --planet earth")
-    cam = get_camera(camera) if isinstance(camera, str) else camera
     origin = camera_centre(dem, truth.x, truth.y, camera_height_m)
-    out = _prepare_out(out, overwrite)
+    _check_out_folder(out, overwrite)  # before the rock layout's horizon rendering
 
     if mode == "frames":
-        pans = frame_pans(cam, frames, pan_start_deg, pan_step_deg)
         az_lo = min(pans) - cam.hfov_deg / 2
         az_span = min(max(pans) - min(pans) + cam.hfov_deg, 360.0)
         focal = cam.fx
     else:
         w, h = int(pano_size[0]), int(pano_size[1])
-        if w < 2 or h < 2:
-            raise ParameterError(f"panorama size must be at least 2 x 2 px, got {w} x {h}")
-        if not 0 < vfov_deg <= 180:
-            raise ParameterError(f"panorama vfov must be in (0, 180] deg, got {vfov_deg}")
         pano = PanoramaSpec("pano.png", -180.0, 360.0, float(elevation_top_deg), float(vfov_deg))
         az_lo, az_span = -180.0, 360.0
         focal = w / (2 * math.pi)
@@ -640,33 +741,54 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
             sun_el_deg = rng.uniform(5, 25)
     scene = make_scene(planet_key, cond, seed, sun_az_deg=sun_az_deg, sun_el_deg=sun_el_deg, rocks=rocks)
 
-    infos = []
-    if mode == "frames":
-        frame_list = []
-        for k, pan in enumerate(pans):
-            name = f"frame_{k:03d}.png"
-            proj = Projection.frame(cam, truth.yaw_deg, truth.pitch_deg, truth.roll_deg, pan, tilt_deg)
-            sun_px = _sun_pixel(cam, proj, scene)
-            infos.append(_render_one(dem, origin, proj, scene, pl, name, out, focal, rng, sun_px, True))
-            frame_list.append(Frame(name, pan, float(tilt_deg)))
-        acq = Acquisition(out, cam, float(camera_height_m), frames=tuple(frame_list))
-    else:
-        proj = Projection.panorama(pano, w, h, truth.yaw_deg, truth.pitch_deg, truth.roll_deg)
-        infos.append(_render_one(dem, origin, proj, scene, pl, pano.image, out, focal, rng, None, False))
-        acq = Acquisition(out, None, float(camera_height_m), panorama=pano)
+    out = Path(out)
+    with _staged_folder(out, overwrite) as tmp:
+        infos = []
+        if mode == "frames":
+            frame_list = []
+            for k, pan in enumerate(pans):
+                name = f"frame_{k:03d}.png"
+                proj = Projection.frame(cam, truth.yaw_deg, truth.pitch_deg, truth.roll_deg, pan, tilt_deg)
+                sun_px = _sun_pixel(cam, proj, scene)
+                infos.append(_render_one(dem, origin, proj, scene, pl, name, tmp, focal, rng, sun_px, True))
+                frame_list.append(Frame(name, pan, float(tilt_deg)))
+            acq = Acquisition(out, cam, float(camera_height_m), frames=tuple(frame_list))
+        else:
+            proj = Projection.panorama(pano, w, h, truth.yaw_deg, truth.pitch_deg, truth.roll_deg)
+            infos.append(_render_one(dem, origin, proj, scene, pl, pano.image, tmp, focal, rng, None, False))
+            acq = Acquisition(out, None, float(camera_height_m), panorama=pano)
 
-    prior = (truth.pitch_deg, truth.roll_deg) if attitude_prior is None else attitude_prior
-    acq = replace(acq, prior_pitch_deg=float(prior[0]), prior_roll_deg=float(prior[1]))
-    sim = {
-        "planet": pl.name, "seed": int(seed), "conditions": cond.active(), "mode": mode,
-        "dem": {"source": dem.source, "checksum": dem.checksum, "crs": dem.crs_name},
-        "ground_z_m": float(origin[2] - camera_height_m),
-        "sun": {"azimuth_deg": scene.sun_az_deg % 360.0, "elevation_deg": scene.sun_el_deg},
-        "rocks": [dict(zip(("x", "y", "z", "radius_h_m", "radius_v_m"), r)) for r in rocks],
-        "images": infos,
-    }
-    save_acquisition(out, acq, truth=truth, extra={"simulation": sim})
+        acq = replace(acq, prior_pitch_deg=prior[0], prior_roll_deg=prior[1])
+        sim = {
+            "planet": pl.name, "seed": int(seed), "conditions": cond.active(), "mode": mode,
+            "dem": {"source": dem.source, "checksum": dem.checksum, "crs": dem.crs_name},
+            "ground_z_m": float(origin[2] - camera_height_m),
+            "sun": {"azimuth_deg": scene.sun_az_deg % 360.0, "elevation_deg": scene.sun_el_deg},
+            "rocks": [dict(zip(("x", "y", "z", "radius_h_m", "radius_v_m"), r)) for r in rocks],
+            "images": infos,
+        }
+        save_acquisition(tmp, acq, truth=truth, extra={"simulation": sim})
     return out
+
+
+def normalise_yaw(yaw_deg: float) -> float:
+    """A heading [deg] brought into [0, 360), the range of every azimuth in ``conventions.md``."""
+    y = float(yaw_deg) % 360.0
+    return 0.0 if y >= 360.0 else y  # -1e-14 % 360 rounds to 360.0
+
+
+def check_attitude_prior(prior) -> tuple[float, float]:
+    """The inclinometer's (pitch, roll) [deg]: two finite angles a rover on the ground can have."""
+    try:
+        p, r = (float(v) for v in prior)
+    except (TypeError, ValueError):
+        raise ParameterError(f"attitude prior must be two angles (pitch, roll) [deg], got {prior!r}") from None
+    if not (math.isfinite(p) and math.isfinite(r)):
+        raise ParameterError(f"attitude prior must be finite angles [deg], got pitch {p}, roll {r}")
+    if abs(p) > 60 or abs(r) > 60:
+        raise ParameterError(f"attitude prior must be within +-60 deg for a rover on the ground, "
+                             f"got pitch {p:g}, roll {r:g}")
+    return p, r
 
 
 def _sun_pixel(cam: Camera, proj: Projection, scene: Scene):
@@ -743,6 +865,7 @@ def plan_set(dem: Dem, name: str, cases: int, seed: int, *, area=None, camera: s
     if int(cases) != cases or cases < 1:
         raise ParameterError(f"cases must be a positive whole number, got {cases}")
     cases = int(cases)
+    seed = check_seed(seed)
     area = _check_area(dem, area)
     rng = np.random.default_rng([int(seed), sum(map(ord, key))])
     pl = get_planet(planet)
@@ -794,28 +917,34 @@ def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
 
     Positions are drawn uniformly (off-grid) inside ``area`` (XMIN, YMIN, XMAX, YMAX) [m], default
     :func:`default_area`; headings uniform in [0, 360) deg; everything deterministic for ``seed``.
-    Also writes ``out/set.json`` listing the cases. Returns the case folders.
+    Also writes ``out/set.json`` listing the cases. Returns the case folders. As for
+    :func:`simulate_acquisition`, options are checked first and ``out`` is replaced (with
+    ``overwrite``) only by a complete set.
     tilt_deg : [deg] mast tilt of every frame (mountain skylines sit high: 10-15 deg keeps them in
         a navcam's view), except where the set chooses its own (SCOM)
     """
+    # Everything is checked and planned before ``out`` is touched (or a progress bar shown), and
+    # the set is rendered into a hidden sibling that replaces ``out`` only once complete.
+    check_render_options(mode=mode, camera=camera, camera_height_m=camera_height_m, tilt_deg=tilt_deg,
+                  planet=planet, seed=seed, frames=frames, pano_size=pano_size)
     plans = plan_set(dem, name, cases, seed, area=area, camera=camera, mode=mode,
                      camera_height_m=camera_height_m, planet=planet)
-    out = _prepare_out(out, overwrite)
-    folders = []
-    it = plans
-    if progress:
-        from tqdm import tqdm
+    out = _check_out_folder(out, overwrite)
+    with _staged_folder(out, overwrite) as tmp:
+        it = plans
+        if progress:
+            from tqdm import tqdm
 
-        it = tqdm(plans, desc=f"set {name.upper()}", unit="case")
-    for p in it:
-        folders.append(simulate_acquisition(
-            dem, p["truth"], out / p["folder"], camera=camera, mode=mode, frames=frames,
-            camera_height_m=camera_height_m, planet=planet, overwrite=overwrite, pano_size=pano_size,
-            **{"tilt_deg": tilt_deg, **p["kwargs"]}))
-    listing = {
-        "set": name.upper(), "description": SETS[name.upper()], "seed": int(seed), "cases": [
-            {"folder": p["folder"], "truth": asdict(p["truth"]),
-             **{k: v for k, v in p["kwargs"].items()}} for p in plans],
-    }
-    write_json(out / "set.json", listing)
-    return folders
+            it = tqdm(plans, desc=f"set {name.upper()}", unit="case")
+        for p in it:
+            simulate_acquisition(
+                dem, p["truth"], tmp / p["folder"], camera=camera, mode=mode, frames=frames,
+                camera_height_m=camera_height_m, planet=planet, pano_size=pano_size,
+                **{"tilt_deg": tilt_deg, **p["kwargs"]})
+        listing = {
+            "set": name.upper(), "description": SETS[name.upper()], "seed": int(seed), "cases": [
+                {"folder": p["folder"], "truth": asdict(p["truth"]),
+                 **{k: v for k, v in p["kwargs"].items()}} for p in plans],
+        }
+        write_json(tmp / "set.json", listing)
+    return [out / p["folder"] for p in plans]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import click
 
 CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [0, 1]: dust, clouds "
@@ -12,7 +14,8 @@ CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [
 @click.argument("dem", type=click.Path(dir_okay=False))
 @click.option("--x", "x", type=float, required=True, help="Rover easting [m] in the DEM's CRS.")
 @click.option("--y", "y", type=float, required=True, help="Rover northing [m] in the DEM's CRS.")
-@click.option("--yaw-deg", type=float, required=True, help="Heading, clockwise from grid north [deg].")
+@click.option("--yaw-deg", type=float, required=True,
+              help="Heading, clockwise from grid north [deg]; written normalised to [0, 360).")
 @click.option("--pitch-deg", type=float, default=0.0, show_default=True, help="Nose up positive [deg].")
 @click.option("--roll-deg", type=float, default=0.0, show_default=True, help="Right side down positive [deg].")
 @click.option("--camera-height-m", type=float, default=1.5, show_default=True, help="Camera above ground [m].")
@@ -26,34 +29,44 @@ CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [
 @click.option("--pan-step-deg", type=float, default=None,
               help="Pan step [deg] (default: 2/3 of the field of view).")
 @click.option("--tilt-deg", type=float, default=0.0, show_default=True, help="Mast tilt, up positive [deg].")
-@click.option("--prior-pitch-deg", type=float, default=None, help="Inclinometer pitch to report (default: true).")
-@click.option("--prior-roll-deg", type=float, default=None, help="Inclinometer roll to report (default: true).")
+@click.option("--prior-pitch-deg", type=float, default=None,
+              help="Inclinometer pitch to report, within +-60 [deg] (default: true).")
+@click.option("--prior-roll-deg", type=float, default=None,
+              help="Inclinometer roll to report, within +-60 [deg] (default: true).")
 @click.option("--conditions", default=None, help=CONDITION_HELP)
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the looks (sun, texture, noise, rocks).")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Seed of the looks (sun, texture, noise, rocks), >= 0.")
 @click.option("--planet", default="earth", show_default=True, help="earth, mars or a radius [m].")
 @click.option("--crs", default=None, help="Target CRS when the DEM must be reprojected.")
 @click.option("--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
-@click.option("--overwrite", is_flag=True, help="Replace the contents of a non-empty --out.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace a non-empty --out, whole, once the new one is complete.")
 def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, camera, pano_size, frames,
              pan_start_deg, pan_step_deg, tilt_deg, prior_pitch_deg, prior_roll_deg, conditions, seed,
              planet, crs, out, overwrite):
     """Render an acquisition of DEM seen from (X, Y) with its exact skylines."""
     from ..dem import load_dem
     from ..formats import Truth
-    from ..simulate import Conditions, simulate_acquisition
+    from ..simulate import (Conditions, check_attitude_prior, check_render_options,
+                            simulate_acquisition)
 
-    cond = Conditions.parse(conditions)  # fail on a bad name before loading anything
-    _check_out(out, overwrite)
-    d = load_dem(dem, crs=crs)
+    # Fail on bad options before loading anything (simulate_acquisition checks them all again).
+    cond = Conditions.parse(conditions)
+    check_render_options(mode=mode, camera=camera, camera_height_m=camera_height_m, tilt_deg=tilt_deg,
+                  planet=planet, seed=seed, frames=frames, pan_start_deg=pan_start_deg,
+                  pan_step_deg=pan_step_deg, pano_size=pano_size)
     prior = None
     if prior_pitch_deg is not None or prior_roll_deg is not None:
-        prior = (pitch_deg if prior_pitch_deg is None else prior_pitch_deg,
-                 roll_deg if prior_roll_deg is None else prior_roll_deg)
-    path = simulate_acquisition(
-        d, Truth(x, y, yaw_deg, pitch_deg, roll_deg), out, camera=camera, mode=mode, frames=frames,
-        pan_start_deg=pan_start_deg, pan_step_deg=pan_step_deg, tilt_deg=tilt_deg,
-        camera_height_m=camera_height_m, planet=planet, conditions=cond, seed=seed,
-        overwrite=overwrite, attitude_prior=prior, pano_size=pano_size)
+        prior = check_attitude_prior((pitch_deg if prior_pitch_deg is None else prior_pitch_deg,
+                              roll_deg if prior_roll_deg is None else prior_roll_deg))
+    _check_out(out, overwrite, dem)
+    d = load_dem(dem, crs=crs)
+    with writing_to(out):
+        path = simulate_acquisition(
+            d, Truth(x, y, yaw_deg, pitch_deg, roll_deg), out, camera=camera, mode=mode, frames=frames,
+            pan_start_deg=pan_start_deg, pan_step_deg=pan_step_deg, tilt_deg=tilt_deg,
+            camera_height_m=camera_height_m, planet=planet, conditions=cond, seed=seed,
+            overwrite=overwrite, attitude_prior=prior, pano_size=pano_size)
     click.echo(str(path))
 
 
@@ -61,7 +74,7 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
 @click.argument("dem", type=click.Path(dir_okay=False))
 @click.option("--set", "name", required=True, help="REF, HREL, SCOM, LREL, CLUT, OCCL or COND.")
 @click.option("--cases", type=int, default=10, show_default=True, help="Number of cases.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the draws, >= 0.")
 @click.option("--area", type=float, nargs=4, default=None, metavar="XMIN YMIN XMAX YMAX",
               help="Where positions are drawn [m] (default: DEM bounds minus a margin).")
 @click.option("--mode", type=click.Choice(["frames", "panorama"]), default="frames", show_default=True)
@@ -75,31 +88,79 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
 @click.option("--planet", default="earth", show_default=True, help="earth, mars or a radius [m].")
 @click.option("--crs", default=None, help="Target CRS when the DEM must be reprojected.")
 @click.option("--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
-@click.option("--overwrite", is_flag=True, help="Replace the contents of a non-empty --out.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace a non-empty --out, whole, once the new one is complete.")
 def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, camera_height_m, tilt_deg,
                  planet, crs, out, overwrite):
     """Render a named robustness set of acquisitions (one subfolder per case)."""
     from ..dem import load_dem
     from ..errors import ParameterError
-    from ..simulate import SETS
+    from ..simulate import SETS, check_render_options
     from ..simulate import simulate_set as run_set
 
     if name.upper() not in SETS:
         raise ParameterError(f"unknown set {name!r}: choose one of {', '.join(SETS)}")
-    _check_out(out, overwrite)
+    if cases < 1:
+        raise ParameterError(f"cases must be >= 1, got {cases}")
+    # Fail on bad options before loading anything (simulate_set checks them all again).
+    check_render_options(mode=mode, camera=camera, camera_height_m=camera_height_m, tilt_deg=tilt_deg,
+                  planet=planet, seed=seed, frames=frames, pano_size=pano_size)
+    _check_out(out, overwrite, dem)
     d = load_dem(dem, crs=crs)
-    folders = run_set(d, name, cases, seed, out, area=area or None, camera=camera, mode=mode,
-                      frames=frames, camera_height_m=camera_height_m, planet=planet,
-                      overwrite=overwrite, tilt_deg=tilt_deg, pano_size=pano_size, progress=True)
+    with writing_to(out):
+        folders = run_set(d, name, cases, seed, out, area=area or None, camera=camera, mode=mode,
+                          frames=frames, camera_height_m=camera_height_m, planet=planet,
+                          overwrite=overwrite, tilt_deg=tilt_deg, pano_size=pano_size, progress=True)
     click.echo(f"{len(folders)} cases in {out}")
 
 
-def _check_out(out, overwrite: bool) -> None:
-    """Refuse a non-empty --out before any heavy work."""
+def _check_out(out, overwrite: bool, dem=None) -> None:
+    """Refuse a non-empty --out before any heavy work, and one that holds the DEM (--overwrite
+    replaces the folder whole, which would delete the DEM)."""
     from pathlib import Path
 
-    from ..errors import OutputExistsError
+    from ..errors import OutputExistsError, ParameterError
 
     p = Path(out)
+    if p.exists() and not p.is_dir():
+        raise OutputExistsError(f"{p} exists and is not a folder: choose another --out")
     if p.is_dir() and any(p.iterdir()) and not overwrite:
-        raise OutputExistsError(f"{p} is not empty: pass --overwrite to replace its contents")
+        raise OutputExistsError(f"{p} is not empty: pass --overwrite to replace it")
+    if dem is not None and p.exists():
+        d, o = Path(dem).resolve(), p.resolve()
+        if o == d.parent or o in d.parents:
+            raise ParameterError(f"the DEM {dem} lies inside --out {out}: choose another --out")
+
+
+@contextmanager
+def writing_to(out):
+    """Turn an operating-system error while writing ``out`` (a read-only place, a parent that is
+    a file, a full disk) into a one-line error instead of a traceback.
+
+    An error naming a file elsewhere (reading the DEM, say) is not about ``out`` and passes on.
+    """
+    from pathlib import Path
+
+    from ..errors import SkyfixError
+
+    try:
+        yield
+    except OSError as e:
+        if e.filename is not None and not _concerns(Path(e.filename), Path(out)):
+            raise
+        reason = e.strerror or str(e)
+        where = f" ({e.filename})" if e.filename and str(e.filename) != str(out) else ""
+        # mkdir under a file says "File exists" or "Not a directory": name the file instead
+        blocker = next((a for a in Path(out).parents if a.exists()), None)
+        if blocker is not None and not blocker.is_dir():
+            reason, where = f"{blocker} is a file, not a folder", ""
+        raise SkyfixError(f"cannot write {out}: {reason}{where}; choose another --out") from None
+
+
+def _concerns(path, out) -> bool:
+    """Whether ``path`` is ``out``, inside it, one of its parents, or a staging sibling of it."""
+    path, out = path.resolve(), out.resolve()
+    if path == out or out in path.parents or path in out.parents:
+        return True
+    # the simulator renders into a hidden sibling (.NAME.xxx.partial) before it takes out's place
+    return out.parent in path.parents and path.relative_to(out.parent).parts[0].startswith(f".{out.name}.")
