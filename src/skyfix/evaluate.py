@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ParameterError, SkyfixError
+from .errors import OutputExistsError, ParameterError, SkyfixError
 from .report import CaseResult
 
 log = logging.getLogger(__name__)
@@ -62,11 +62,23 @@ class EvalConfig:
             raise ParameterError(f"skylines must be 'detect' or 'truth', got {self.skylines!r}")
         if self.scenario not in (1, 2, 3):
             raise ParameterError(f"scenario must be 1, 2 or 3, got {self.scenario}")
+        if not self.sets:
+            raise ParameterError(f"no robustness set given: choose from {', '.join(SETS)} "
+                                 "(e.g. --sets REF,HREL)")
         bad = [s for s in self.sets if s not in SETS]
         if bad:
             raise ParameterError(f"unknown set(s) {', '.join(bad)}: choose from {', '.join(SETS)}")
-        if self.cases < 1:
-            raise ParameterError(f"cases must be >= 1, got {self.cases}")
+        if isinstance(self.cases, bool) or int(self.cases) != self.cases or self.cases < 1:
+            raise ParameterError(f"cases must be a whole number >= 1, got {self.cases}")
+        from .planets import get_planet
+        from .simulate import check_seed
+
+        check_seed(self.seed)
+        if not (math.isfinite(self.camera_height_m) and self.camera_height_m >= 0):
+            raise ParameterError(f"camera height must be >= 0 m, got {self.camera_height_m}")
+        if not (math.isfinite(self.tilt_deg) and abs(self.tilt_deg) <= 90):
+            raise ParameterError(f"mast tilt must be within +-90 deg (up positive), got {self.tilt_deg}")
+        get_planet(self.planet)
 
 
 def peak_rss_mb() -> float:
@@ -152,12 +164,15 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
     report.html under ``out``. Returns the report's path."""
     from ._io import check_can_write
     from .dem import load_dem
-    from .simulate import simulate_set
+    from .simulate import plan_set, simulate_set
 
+    # Everything that can be refused is checked before ``out`` is created, so a refusal leaves
+    # nothing behind.
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"{out} exists and is not a folder: choose another --out")
     if out.exists() and any(out.iterdir()) and not overwrite:
         check_can_write(out, overwrite)
-    out.mkdir(parents=True, exist_ok=True)
     dem = load_dem(dem_path)
     db = None
     area = cfg.area
@@ -172,6 +187,10 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
             raise ParameterError(f"the database was built for a camera {db.camera_height_m} m high, "
                                  f"the cases use {cfg.camera_height_m} m")
         area = area or db_area(db, margin_m=2 * db.spacing_m)
+    for s_i, set_name in enumerate(cfg.sets):  # an area outside the DEM, or mostly void there
+        plan_set(dem, set_name, cfg.cases, cfg.seed + s_i, area=area,
+                 camera_height_m=cfg.camera_height_m, planet=cfg.planet)
+    out.mkdir(parents=True, exist_ok=True)
     results: list[CaseResult] = []
     features: list[dict] = []
     examples: list[tuple[CaseResult, dict, Path]] = []
@@ -179,7 +198,8 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
     for s_i, set_name in enumerate(cfg.sets):
         t0 = time.perf_counter()
         case_dirs = simulate_set(dem, set_name, cfg.cases, cfg.seed + s_i, out / "cases" / set_name,
-                                 area=area, overwrite=True, tilt_deg=cfg.tilt_deg)
+                                 area=area, overwrite=True, tilt_deg=cfg.tilt_deg,
+                                 camera_height_m=cfg.camera_height_m, planet=cfg.planet)
         t_sim = (time.perf_counter() - t0) / max(len(case_dirs), 1)
         for k, cdir in enumerate(case_dirs):
             res, extra = run_case(Path(cdir), set_name, cfg, dem, db, rng, k)
@@ -225,9 +245,9 @@ def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command
     tables.append(("Confidence reliability", reliability_rows(results)))
     tables.append(("Time and memory per stage (rover CPU ~30x slower)", timing_rows(results, cfg.scenario)))
     text = "\n\n".join(f"{h}\n{format_table(rows)}" for h, rows in tables)
-    (out / "tables.txt").write_text(text + "\n")
-    (out / "tables.md").write_text("\n\n".join(f"### {h}\n\n{format_table(rows, 'markdown')}"
-                                               for h, rows in tables) + "\n")
+    _write_text(out / "tables.txt", text + "\n")
+    _write_text(out / "tables.md", "\n\n".join(f"### {h}\n\n{format_table(rows, 'markdown')}"
+                                                for h, rows in tables) + "\n")
     figs = [plot_error_cdfs(results, out / "error_cdf.png", cfg.scenario),
             plot_reliability(results, out / "reliability.png")]
     for res, extra, cdir in examples:
@@ -249,6 +269,14 @@ def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command
     return write_report_html(out, title=f"skyfix evaluation: scenario {cfg.scenario}", intro=intro,
                              sections=[(h, format_table(rows, "html")) for h, rows in tables],
                              figures=figs, command=command)
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Write ``text`` atomically: a crash never leaves a truncated table behind."""
+    from ._io import atomic_path
+
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
 
 
 def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig, *,

@@ -17,12 +17,13 @@ from .options import overwrite_option
 @click.option("--sets", default="REF", show_default=True,
               help="Comma-separated robustness sets: REF,HREL,SCOM,LREL,CLUT,OCCL,COND.")
 @click.option("--cases", type=int, default=10, show_default=True, help="Cases per set.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the draws, >= 0.")
 @click.option("--db", "db_path", type=click.Path(file_okay=False), default=None,
               help="Skyline database (scenario 1); cases are drawn inside its grid.")
 @click.option("--area", type=float, nargs=4, default=None, metavar="XMIN YMIN XMAX YMAX",
               help="Where cases are drawn [m] (default: the database grid, or the simulator's default).")
-@click.option("--camera-height-m", type=float, default=1.5, show_default=True)
+@click.option("--camera-height-m", type=float, default=1.5, show_default=True,
+              help="Camera above the ground in the simulated cases (and the database's) [m].")
 @click.option("--tilt-deg", type=float, default=15.0, show_default=True,
               help="Mast tilt of the simulated frames [deg] (SCOM sets its own).")
 @click.option("--skylines", type=click.Choice(["detect", "truth"]), default="detect", show_default=True,
@@ -35,6 +36,7 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
     report.html to OUT."""
     from ..evaluate import EvalConfig
     from ..evaluate import evaluate as run
+    from .simulate import writing_to
 
     cfg = EvalConfig(scenario=scenario, sets=tuple(s.strip().upper() for s in sets.split(",") if s.strip()),
                      cases=cases, seed=seed, area=tuple(area) if area else None,
@@ -43,7 +45,8 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
     # The command that regenerates the report, as typed (for the report's own footer).
     args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
     command = "skyfix evaluate " + " ".join(shlex.quote(a) for a in args)
-    report = run(dem_path, cfg, out, db_path=db_path, overwrite=overwrite, command=command)
+    with writing_to(out):
+        report = run(dem_path, cfg, out, db_path=db_path, overwrite=overwrite, command=command)
     click.echo(f"wrote {report}")
 
 
