@@ -19,6 +19,39 @@ _SHARED_CANDIDATES = (Path.cwd().parent / "shared" / "data" / "dem" / "sierra_ne
                       Path(__file__).resolve().parents[3] / "shared" / "data" / "dem" / "sierra_nevada_30m.tif")
 
 
+#: what a demo run writes into its folder; nothing else is ever replaced without --overwrite
+DEMO_OUTPUTS = frozenset({"skylines.zarr", "acquisition", "fix.json", "summary.json",
+                          "skyline_overlay.png", "generated_dem.tif"})
+#: written first into a folder the demo creates or finds empty, so a rerun knows the folder is its own
+DEMO_MARKER = ".skyfix-demo"
+
+
+def is_demo_output(out: Path) -> bool:
+    """Whether folder ``out`` holds only what an earlier demo wrote (and so may be rebuilt).
+
+    It must carry the marker (or, from before the marker, a ``summary.json``) and nothing but
+    the demo's own outputs and hidden temporary files: a user's folder that merely contains an
+    ``acquisition/`` is not a demo output.
+    """
+    names = {p.name for p in out.iterdir()}
+    if DEMO_MARKER not in names and "summary.json" not in names:
+        return False
+    return all(n in DEMO_OUTPUTS or n == DEMO_MARKER or n.startswith(".") for n in names)
+
+
+def check_demo_out(out: Path, overwrite: bool) -> None:
+    """Refuse an ``out`` that is a file, or a non-empty folder that is not an earlier demo's
+    output unless ``overwrite`` (which replaces only the demo's own outputs in it)."""
+    from .errors import OutputExistsError
+
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"{out} exists and is not a folder: choose another --out")
+    if out.is_dir() and any(out.iterdir()) and not overwrite and not is_demo_output(out):
+        raise OutputExistsError(
+            f"{out} is not empty and is not an earlier skyfix demo's output: choose another --out, "
+            f"or pass --overwrite to replace the demo's files in it ({', '.join(sorted(DEMO_OUTPUTS))})")
+
+
 def find_demo_dem(out: Path, say=print) -> Path:
     for p in _SHARED_CANDIDATES:
         if p.exists():
@@ -39,8 +72,11 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
 
     area_m : [m] side of the square search area (database grid) at the DEM's centre
     spacing_m : [m] database grid spacing
+    seed : whole number >= 0, where the rover is hidden
+    overwrite : replace the demo's files in a non-empty ``out`` that is not an earlier demo's
+        output (an earlier demo's output is rebuilt without it, so the quick start can be rerun)
     """
-    from ._io import check_can_write, write_json
+    from ._io import write_json
     from .database import build_database, open_database
     from .dem import load_dem
     from .evaluate import EvalConfig, plot_skyline_overlay
@@ -48,12 +84,20 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
     from .pose import locate
     from .profile import acquisition_profile
     from .report import CaseResult
-    from .simulate import simulate_acquisition
+    from .errors import ParameterError
+    from .simulate import check_seed, simulate_acquisition
 
+    # Checked before anything is built or written (the database alone takes 15 s).
+    seed = check_seed(seed)
+    if not (math.isfinite(area_m) and math.isfinite(spacing_m) and 0 < spacing_m < area_m):
+        raise ParameterError(f"need 0 < spacing_m < area_m, got {spacing_m} and {area_m}")
     out = Path(out)
-    if out.exists() and any(out.iterdir()):
-        check_can_write(out / "fix.json", overwrite)
+    check_demo_out(out, overwrite)
+    fresh = not out.exists() or not any(out.iterdir())
     out.mkdir(parents=True, exist_ok=True)
+    if fresh or is_demo_output(out):
+        (out / DEMO_MARKER).write_text("written by `skyfix demo`: a rerun may replace this folder's "
+                                       "demo outputs\n")
     timings = {}
     dem_path = find_demo_dem(out, say)
     dem = load_dem(dem_path)

@@ -4,18 +4,19 @@ from __future__ import annotations
 
 import click
 
-from .options import overwrite_option
-
 
 @click.command()
 @click.option("--out", type=click.Path(file_okay=False), default="skyfix-demo", show_default=True,
-              help="Output folder.")
-@click.option("--seed", type=int, default=4, show_default=True, help="Where the rover is hidden.")
-@overwrite_option
+              help="Output folder: new, empty, or an earlier demo's (rebuilt).")
+@click.option("--seed", type=int, default=4, show_default=True, help="Where the rover is hidden (>= 0).")
+@click.option("--overwrite", is_flag=True,
+              help="Replace the demo's files in a non-empty --out that is not an earlier demo's.")
 def demo(out, seed, overwrite):
     """Build a small skyline database from a real DEM (../shared/data, else a generated one),
     simulate a rover's 360 deg frame set at a hidden position, detect its skyline, locate it,
     and print the fix and its error."""
     from ..demo import run_demo
+    from .simulate import writing_to
 
-    run_demo(out, seed=seed, overwrite=overwrite, say=click.echo)
+    with writing_to(out):
+        run_demo(out, seed=seed, overwrite=overwrite, say=click.echo)
