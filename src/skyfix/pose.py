@@ -950,7 +950,12 @@ def synthetic_profile(dem, x, y, heading_deg, pitch_deg=0.0, roll_deg=0.0, *, ca
     # Average the dense world horizon onto sub-bins before rotating: a measured bin is an average.
     q = body_profile(world, heading_deg, pitch_deg, roll_deg, n_bins=n_bins * 10,
                      prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
-    q = np.roll(q, 5).reshape(n_bins, 10).mean(axis=1) if n_bins * 10 == q.size else q
+    if n_bins * 10 == q.size:
+        # bin j spans j - 0.5 .. j + 0.5 bins: 11 sub-bin samples, the two ends half-weighted
+        # (a plain mean of 10 is centred 0.05 bin off, a heading bias of 0.05 deg at 360 bins)
+        idx = (10 * np.arange(n_bins)[:, None] + np.arange(-5, 6)[None, :]) % q.size
+        w = np.r_[0.5, np.ones(9), 0.5] / 10.0
+        q = q[idx] @ w
     q = q + rng.normal(0.0, noise_deg, n_bins) if noise_deg > 0 else q
     if outlier_fraction > 0:
         k = rng.random(n_bins) < outlier_fraction
