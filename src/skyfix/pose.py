@@ -140,12 +140,14 @@ class Attitude:
 
 def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.0, *,
                  restarts_deg=(-2.5, 0.0, 2.5), prior_pitch_deg=0.0, prior_roll_deg=0.0,
-                 yaw_window_deg=None, iterations=12, accept_deg=None) -> Attitude:
+                 yaw_window_deg=None, yaw_center_deg=None, iterations=12,
+                 accept_deg=None) -> Attitude:
     """Yaw, pitch, roll [deg] (and a height offset) that best map the world horizon onto the query.
 
     Gauss-Newton with a numerical Jacobian and Huber weights (outlier bins), restarted from
     every combination of ``restarts_deg`` offsets on the three axes; the lowest robust cost wins.
-    ``yaw_window_deg`` keeps yaw within that distance of ``yaw0_deg``. With ``accept_deg`` [deg],
+    ``yaw_window_deg`` [deg] keeps yaw within that distance of ``yaw_center_deg`` [deg] (default
+    ``yaw0_deg``), restarts included. With ``accept_deg`` [deg],
     the fit from the first guess alone is kept when its robust residual level (1.4826 MAD) is
     below it: the restarts are there to escape false minima, which do not fit at the noise level.
     """
@@ -165,6 +167,16 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
         a = np.abs(r)
         return np.where(a <= k, 1.0, k / np.maximum(a, 1e-12)), np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k))
 
+    center = yaw0_deg if yaw_center_deg is None else yaw_center_deg
+
+    def in_window(yaw):
+        # The window is about the prior, not the start: a start at the window's edge plus a
+        # restart and a step returned the truth 20 deg from a +-10 deg prior.
+        if yaw_window_deg is None:
+            return yaw
+        d = (yaw - center + 180.0) % 360.0 - 180.0
+        return center + float(np.clip(d, -yaw_window_deg, yaw_window_deg))
+
     best = None
     h = 0.02
     offsets = [(0.0, 0.0, 0.0)] + [(dy, dp, dr) for dy in restarts_deg for dp in restarts_deg
@@ -174,7 +186,7 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
             rb = best[2]
             if 1.4826 * np.median(np.abs(rb - np.median(rb))) <= accept_deg:
                 break
-        th = np.array([yaw0_deg + dy, pitch0_deg + dp, roll0_deg + dr], float)
+        th = np.array([in_window(yaw0_deg + dy), pitch0_deg + dp, roll0_deg + dr], float)
         lam = 1e-3
         r = resid(th)
         w, cost = robust(r)
@@ -190,9 +202,7 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
             g = jw.T @ r
             step = np.linalg.solve(a + lam * np.diag(np.diag(a) + 1e-9), -g)[:3]
             th_new = th + step
-            if yaw_window_deg is not None:
-                dyaw = (th_new[0] - yaw0_deg + 180.0) % 360.0 - 180.0
-                th_new[0] = yaw0_deg + np.clip(dyaw, -yaw_window_deg, yaw_window_deg)
+            th_new[0] = in_window(th_new[0])
             th_new[1:] = np.clip(th_new[1:], -30.0, 30.0)
             r_new = resid(th_new)
             w_new, cost_new = robust(r_new)
@@ -486,6 +496,36 @@ def _score_points(dem, xs, ys, q, *, camera_height_m, planet, n_bins, remove_til
     p = _render_points(dem, xs, ys, camera_height_m=camera_height_m, planet=planet, n_bins=n_bins)
     sc, sh, _ = robust_scores(p, q, remove_tilt=remove_tilt, workers=workers)
     return sc, sh
+
+
+#: Most grid points a search without a database renders: each costs ~3 ms and ~30 kB, so this
+#: (a 100 m radius at the 2 m step) is about a minute and 300 MB more; a radius of 1e7 m asked
+#: for 728 TiB. Larger areas are what the database is for.
+MAX_PRIOR_GRID_POINTS = 101 * 101
+
+
+def _prior_grid(dem, prior_xy, radius_m, step_m):
+    """Grid points [m] at ``step_m`` over the prior square (centre ``prior_xy``, half-side
+    ``radius_m``), only the part on the DEM: a radius reaching past the DEM costs nothing.
+    Raises ParameterError when the area lies off the DEM or needs more than
+    MAX_PRIOR_GRID_POINTS renders."""
+    xmin, ymin, xmax, ymax = dem.bounds
+    px, py = float(prior_xy[0]), float(prior_xy[1])
+    k = math.ceil(radius_m / step_m)
+    i0, i1 = max(-k, math.ceil((xmin - px) / step_m)), min(k, math.floor((xmax - px) / step_m))
+    j0, j1 = max(-k, math.ceil((ymin - py) / step_m)), min(k, math.floor((ymax - py) / step_m))
+    if i0 > i1 or j0 > j1:
+        raise ParameterError("the prior area lies outside the DEM")
+    n = (i1 - i0 + 1) * (j1 - j0 + 1)
+    if n > MAX_PRIOR_GRID_POINTS:
+        r_max = (math.isqrt(MAX_PRIOR_GRID_POINTS) // 2) * step_m
+        raise ParameterError(
+            f"without a database the search renders a skyline every {step_m:g} m over the prior "
+            f"area: a {radius_m:g} m radius is {n:,} points on the DEM (at most "
+            f"{MAX_PRIOR_GRID_POINTS:,}, a radius of about {r_max:g} m); give a smaller "
+            "--prior-radius-m, or build a database over the area (skyfix build-db) and pass --db")
+    gx, gy = np.meshgrid(px + np.arange(i0, i1 + 1) * step_m, py + np.arange(j0, j1 + 1) * step_m)
+    return gx.ravel(), gy.ravel()
 
 
 def _inside(dem, xs, ys, margin):
@@ -800,6 +840,10 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     if db is None and (prior_xy is None or prior_radius_m is None):
         raise ParameterError("without a database, give a prior position and radius "
                              "(--prior-x, --prior-y, --prior-radius-m) and a DEM")
+    if prior_xy is not None and not all(math.isfinite(float(v)) for v in prior_xy):
+        raise ParameterError(f"prior position must be finite [m], got {tuple(prior_xy)}")
+    if prior_radius_m is not None and not (math.isfinite(prior_radius_m) and prior_radius_m > 0):
+        raise ParameterError(f"prior radius must be a finite number of metres > 0, got {prior_radius_m}")
     if camera_height_m is None:
         camera_height_m = float(getattr(db, "camera_height_m", None) or
                                 profile.meta.get("camera_height_m", 1.5))
@@ -815,12 +859,8 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         step0 = float(db.spacing_m) / 4.0
         crs_wkt = getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else "")
     else:
-        r = float(prior_radius_m)
         step = config.grid_step_m
-        k = int(math.ceil(r / step))
-        off = np.arange(-k, k + 1) * step
-        gx, gy = np.meshgrid(prior_xy[0] + off, prior_xy[1] + off)
-        gx, gy = gx.ravel(), gy.ravel()
+        gx, gy = _prior_grid(dem, prior_xy, float(prior_radius_m), step)
         ok = _inside(dem, gx, gy, 0.0)
         if not ok.any():
             raise ParameterError("the prior area lies outside the DEM")
@@ -888,18 +928,33 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     return (fix, mres) if return_match else fix
 
 
+#: Confidence at most, of a heading pinned to the edge of its search window.
+PINNED_HEADING_CONFIDENCE = 0.05
+
+
+def at_window_edge(heading_deg, prior_deg, window_deg, tol_deg=1e-6) -> bool:
+    """Whether ``heading_deg`` [deg] sits on the edge of ``prior_deg +/- window_deg`` [deg]."""
+    d = abs((heading_deg - prior_deg + 180.0) % 360.0 - 180.0)
+    return d >= window_deg - tol_deg
+
+
 def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                      camera_height_m=1.5, planet="earth", prior_pitch_deg=0.0, prior_roll_deg=0.0,
                      render_bins=1440, model=None) -> HeadingFix:
     """Scenario 3: heading [deg] from a rough position (x, y) [m] and a heading prior [deg].
 
     The shift search is restricted to ``heading_prior_deg +/- window_deg``; the attitude is then
-    refined by Gauss-Newton with restarts, yaw kept within the window.
+    refined by Gauss-Newton with restarts, yaw kept within the window. A heading on the window's
+    edge (the best lies beyond it) gets confidence at most PINNED_HEADING_CONFIDENCE.
     """
     from .horizon import render_horizons
 
     if not 0 < window_deg <= 180:
         raise ParameterError(f"window must be in (0, 180] deg, got {window_deg}")
+    if not math.isfinite(heading_prior_deg):
+        raise ParameterError(f"heading prior must be a finite angle [deg], got {heading_prior_deg}")
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise ParameterError(f"rough position must be finite [m], got ({x}, {y})")
     q, noise = _profile_arrays(profile)
     n = q.size
     dem.require_inside(np.array([x]), np.array([y]), "rough position")
@@ -910,13 +965,15 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     s = score_profiles(world_n[None].astype(np.float32), query, all_shifts=True)[0]
     shifts = np.arange(n) * 360.0 / n
     dist = np.abs((shifts - heading_prior_deg + 180.0) % 360.0 - 180.0)
-    inwin = dist <= window_deg
+    # A window narrower than half a bin holds no bin centre: take the nearest one as the start.
+    inwin = dist <= max(window_deg, float(dist.min()))
     k = int(np.flatnonzero(inwin)[np.argmin(s[inwin])])
     h0 = shifts[k]
     p0, r0 = _harmonic_tilt(q, body_profile(world, h0, n_bins=n))
     att = fit_attitude(q, world, h0, prior_pitch_deg + p0, prior_roll_deg + r0,
                        prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg,
-                       yaw_window_deg=window_deg, restarts_deg=(-2.5, 0.0, 2.5),
+                       yaw_window_deg=window_deg, yaw_center_deg=heading_prior_deg,
+                       restarts_deg=(-2.5, 0.0, 2.5),
                        accept_deg=2.0 * max(noise, 0.05))
     # Landscape inside the window: best vs best shift more than 3 deg away.
     far = inwin & (np.abs((shifts - att.yaw_deg + 180.0) % 360.0 - 180.0) > 3.0)
@@ -927,6 +984,11 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                                att.yaw_sigma_deg,
                                math.hypot(att.pitch_deg - prior_pitch_deg, att.roll_deg - prior_roll_deg))
     conf = _structureless_cap(confidence_from_features(feat, model, "heading"), relief, noise)
+    if window_deg < 180.0 and at_window_edge(att.yaw_deg, heading_prior_deg, window_deg):
+        # Pinned to the window's edge: the fit still improves beyond it, so this is no minimum
+        # and the true heading most likely lies outside the window (truth 20 deg from the prior
+        # with a +-10 deg window gave the edge at confidence 0.9).
+        conf = min(conf, PINNED_HEADING_CONFIDENCE)
     return HeadingFix(att.yaw_deg % 360.0, att.yaw_sigma_deg, att.pitch_deg, att.roll_deg, conf,
                       att.rms_deg ** 2, float(x), float(y), feat)
 
