@@ -1,4 +1,13 @@
-"""Small I/O helpers shared by the stages: atomic writes and JSON that tolerates NaN."""
+"""Small I/O helpers shared by the stages: atomic writes, output checks and JSON that tolerates NaN.
+
+Every output goes through :func:`atomic_path` (a crash never leaves half a file that looks
+whole); the CLI checks every output with :func:`check_outputs` before any work, so a bad path
+fails at once rather than after a long search, and never after another output was written.
+A file output whose folder does not exist is refused (as ``cp`` or a shell redirect would):
+skyfix creates only the folders it is asked to create (``build-db -o``, ``simulate --out``,
+``evaluate --out``, ``demo --out``), never a folder for a file, so a mistyped path fails loudly
+instead of leaving a stray folder tree.
+"""
 
 from __future__ import annotations
 
@@ -11,30 +20,95 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import OutputExistsError
-
+from .errors import OutputExistsError, SkyfixError
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)
+
+#: suffix -> matplotlib format of the figures skyfix can draw (``--plot``); these need no
+#: optional backend, and naming one is enough to choose it.
+PLOT_FORMATS = {".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".pdf": "pdf", ".svg": "svg"}
+#: suffixes of a GeoTIFF output (``locate --score-map``)
+GEOTIFF_SUFFIXES = (".tif", ".tiff")
+
+
+def cannot_write(path, reason: str) -> SkyfixError:
+    """The one error for an output that cannot be written: ``cannot write PATH: REASON``."""
+    return SkyfixError(f"cannot write {path}: {reason}")
+
+
+def _reason(e: OSError) -> str:
+    """What the OS said, without Python's ``[Errno n]`` prefix and the file name repeated."""
+    return (e.strerror or str(e)).strip()
+
+
+def _nearest_existing(path: Path) -> Path:
+    """``path`` or its nearest ancestor that exists (the current folder for a relative path)."""
+    p = path
+    while not os.path.lexists(p):
+        if p.parent == p:
+            break
+        p = p.parent
+    return p
+
+
+def _missing_folder_reason(path: Path) -> str | None:
+    """Why the folder that would hold ``path`` is unusable, or None when it is a folder."""
+    parent = path.parent
+    if parent.is_dir():
+        return None
+    anc = _nearest_existing(parent)
+    if os.path.lexists(anc) and not anc.is_dir():
+        return f"{anc} is a file, not a folder"
+    return f"folder {parent} does not exist (create it first, or give another path)"
+
+
+def _probe_folder(folder: Path, path) -> None:
+    """Create and delete a temporary file in ``folder``: the one reliable test that ``path`` can
+    be written there (permissions, a read-only file system, root's exemptions, ACLs)."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".skyfix-write-test.", dir=folder)
+    except OSError as e:
+        raise cannot_write(path, f"folder {folder} is not writable ({_reason(e)})") from None
+    os.close(fd)
+    os.unlink(tmp)
 
 
 @contextmanager
 def atomic_path(path, *, suffix: str | None = None):
     """Yield a temporary path beside ``path``; rename it onto ``path`` only if the block succeeds.
 
-    A crash never leaves half a file that looks whole.
+    A crash never leaves half a file that looks whole. Missing folders are created (library
+    callers write into folders they own; the CLI refuses a missing folder up front with
+    :func:`check_can_write`). Any OS error writing ``path`` becomes one :class:`SkyfixError`,
+    ``cannot write PATH: REASON``.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp", dir=path.parent
-    )
+    if path.is_dir():
+        raise cannot_write(path, "it is a folder (give a file name)")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp", dir=path.parent
+        )
+    except OSError as e:
+        raise cannot_write(path, _missing_folder_reason(path) or _reason(e)) from None
     os.close(fd)
     try:
-        yield Path(tmp)
-        # mkstemp makes the file private (0600); give it the mode a plain open() would have
-        os.chmod(tmp, 0o666 & ~_UMASK)
-        os.replace(tmp, path)
+        try:
+            yield Path(tmp)
+        except OSError as e:
+            # An OS error about the temporary file (disk full, quota) is a failure to write
+            # ``path``; any other OS error in the block is the block's own and passes through.
+            if e.filename not in (None, tmp, str(tmp)):
+                raise
+            raise cannot_write(path, _reason(e)) from None
+        try:
+            # mkstemp makes the file private (0600); give it the mode a plain open() would have
+            os.chmod(tmp, 0o666 & ~_UMASK)
+            os.replace(tmp, path)
+        except OSError as e:
+            raise cannot_write(path, _reason(e)) from None
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -81,9 +155,61 @@ def write_jsonl(path, rows) -> Path:
     return path
 
 
-def check_can_write(path, overwrite: bool) -> Path:
-    """Refuse to replace an existing ``path`` unless ``overwrite``."""
+def save_figure(fig, path, **savefig_kw) -> Path:
+    """Atomically write a matplotlib figure in the format its suffix names (see PLOT_FORMATS)."""
     path = Path(path)
-    if path.exists() and not overwrite:
-        raise OutputExistsError(f"{path} already exists: pass --overwrite to replace it")
+    fmt = PLOT_FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise cannot_write(path, _suffix_reason(path, PLOT_FORMATS))
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=fmt, **savefig_kw)
     return path
+
+
+def _suffix_reason(path: Path, suffixes) -> str:
+    named = f"the suffix {path.suffix!r}" if path.suffix else "no suffix"
+    return f"{named} names no format it can be written in: end it with {', '.join(suffixes)}"
+
+
+def check_can_write(path, overwrite: bool, *, folder: bool | None = None, suffixes=None) -> Path:
+    """Refuse, before any work, an output ``path`` that could not be written.
+
+    Refuses an existing ``path`` unless ``overwrite``; with ``folder=False`` (a file output) an
+    existing folder at ``path``; a missing or unwritable folder to hold it; and, with
+    ``suffixes``, a suffix not among them. ``folder=None`` keeps the old meaning for callers
+    whose output may be either (an existing folder is then "already exists").
+    """
+    path = Path(path)
+    if folder is False and path.is_dir():
+        raise cannot_write(path, "it is a folder: give a file name" +
+                           (f", e.g. {path / 'out'}{next(iter(suffixes))}" if suffixes else ""))
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        raise cannot_write(path, _suffix_reason(path, suffixes))
+    if os.path.lexists(path) and not overwrite:
+        raise OutputExistsError(f"{path} already exists: pass --overwrite to replace it")
+    if folder is True and path.is_dir():
+        _probe_folder(path, path)
+        return path
+    reason = _missing_folder_reason(path)
+    if reason is not None:
+        raise cannot_write(path, reason)
+    _probe_folder(path.parent, path)
+    return path
+
+
+def check_outputs(overwrite: bool, *outputs) -> None:
+    """Check every output of one command before any work (see :func:`check_can_write`).
+
+    outputs : ``(option, path, suffixes)`` for each file output; ``path`` None = not asked for,
+        ``suffixes`` None = any. Two options naming the same file are refused too: the second
+        would silently replace the first.
+    """
+    seen: dict[str, str] = {}
+    for option, path, suffixes in outputs:
+        if path is None:
+            continue
+        check_can_write(path, overwrite, folder=False, suffixes=suffixes)
+        key = os.path.normcase(os.path.abspath(path))
+        if key in seen:
+            raise SkyfixError(f"{seen[key]} and {option} both name {path}: give each output its own file")
+        seen[key] = option

@@ -7,8 +7,11 @@ from pathlib import Path
 
 import click
 
-from .._io import check_can_write, to_json
+from .._io import PLOT_FORMATS, check_outputs, to_json
 from ..errors import ParameterError, SkyfixError
+
+#: smallest image the detector searches, width x height [px] (skyfix.detect refuses less)
+MIN_WIDTH_PX, MIN_HEIGHT_PX = 2, 8
 
 
 def read_image(path) -> "np.ndarray":  # noqa: F821
@@ -25,6 +28,11 @@ def read_image(path) -> "np.ndarray":  # noqa: F821
         if img.shape[2] == 4:
             img = img[..., :3]
         img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    h, w = img.shape[:2]
+    if w < MIN_WIDTH_PX or h < MIN_HEIGHT_PX:
+        # W x H like every other size in skyfix's messages
+        raise ParameterError(f"image {path} is {w} x {h} px (width x height): detection needs at "
+                             f"least {MIN_WIDTH_PX} x {MIN_HEIGHT_PX} px")
     return img
 
 
@@ -40,18 +48,25 @@ def read_mask(path, shape):
         raise ParameterError(
             f"mask {path} is {m.shape[1]} x {m.shape[0]} px, the image {shape[1]} x {shape[0]}: "
             "give a mask of the image's size")
+    if not m.any():
+        # An all-zero mask leaves nothing to search: the answer would be "no skyline" for a
+        # reason that is the mask's, not the image's (an inverted mask, or one whose ones were
+        # lost in a conversion).
+        raise ParameterError(f"mask {path} has no non-zero pixel, so no pixel holds data: "
+                             "non-zero marks valid data (check the mask is not inverted)")
     return m > 0
 
 
 def plot_skyline(path, img, skyline):
-    """Write a PNG of the image with the detected skyline drawn over it."""
+    """Write the image with the detected skyline drawn over it, in the format ``path``'s suffix
+    names (PNG, JPEG, PDF or SVG)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from .._io import atomic_path
+    from .._io import save_figure
 
     h, w = img.shape[:2]
     fig_w = min(20.0, max(6.0, w / 150))
@@ -65,9 +80,10 @@ def plot_skyline(path, img, skyline):
     n = int(np.isfinite(skyline.rows).sum())
     ax.set_title(f"{skyline.image}: skyline in {n} of {w} columns", fontsize=8)
     fig.tight_layout()
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+    try:
+        save_figure(fig, path)
+    finally:
+        plt.close(fig)
 
 
 @click.command("detect")
@@ -79,7 +95,7 @@ def plot_skyline(path, img, skyline):
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the skyline JSON here (default: stdout).")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Write a PNG of the image with the skyline drawn over it.")
+              help="Draw the image with the skyline over it (.png, .jpg, .pdf or .svg).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 def detect(image, mask, method, output, plot, overwrite):
     """Detect the skyline in IMAGE: per column the row of the first terrain pixel below the sky,
@@ -87,9 +103,7 @@ def detect(image, mask, method, output, plot, overwrite):
     from ..detect import detect_skyline
     from ..formats import write_skyline_json
 
-    for p in (output, plot):
-        if p is not None:
-            check_can_write(p, overwrite)
+    check_outputs(overwrite, ("--output", output, None), ("--plot", plot, PLOT_FORMATS))
     img = read_image(image)
     m = read_mask(mask, img.shape) if mask is not None else None
     sky = detect_skyline(img, mask=m, method=method, name=Path(image).name)

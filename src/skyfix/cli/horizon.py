@@ -21,7 +21,8 @@ from .options import (azimuth_bins_option, camera_height_option, crs_option, max
 @max_distance_option
 @crs_option
 @click.option("--json", "as_json", is_flag=True, help="Print the profile as JSON.")
-@click.option("--plot", type=click.Path(dir_okay=False), default=None, help="Draw the profile to a PNG.")
+@click.option("--plot", type=click.Path(dir_okay=False), default=None,
+              help="Draw the profile to this file (.png, .jpg, .pdf or .svg).")
 @overwrite_option
 def horizon(dem_path, x, y, camera_height_m, planet, azimuth_bins, max_distance_m, crs, as_json,
             plot, overwrite):
@@ -31,12 +32,11 @@ def horizon(dem_path, x, y, camera_height_m, planet, azimuth_bins, max_distance_
     north), with the planet's curvature and refraction. Rays stop at the DEM edge or
     --max-distance-m; their lengths are reported.
     """
-    from .._io import check_can_write, to_json
+    from .._io import PLOT_FORMATS, check_outputs, to_json
     from ..dem import load_dem
     from ..horizon import render_horizon
 
-    if plot:
-        check_can_write(plot, overwrite)
+    check_outputs(overwrite, ("--plot", plot, PLOT_FORMATS))
     dem = load_dem(dem_path, crs=crs)
     hb = render_horizon(dem, x, y, camera_height_m=camera_height_m, planet=planet,
                         azimuth_bins=azimuth_bins, max_distance_m=max_distance_m)
@@ -58,20 +58,35 @@ def horizon(dem_path, x, y, camera_height_m, planet, azimuth_bins, max_distance_
 
 
 def _summary(dem, x, y, hb, el, length, az, max_distance_m):
-    k = int(np.nanargmax(el)) if np.isfinite(el).any() else 0
+    # Bins whose ray finds no terrain (pointing off the DEM from its edge or corner) are NaN:
+    # statistics skip them, and a sector without any terrain says so instead of "+nan".
+    seen = np.isfinite(el)
     edge = length < (max_distance_m or np.inf) * (1 - 1e-6)
     out = sys.stdout
     print(dem.describe(), file=out)
     print(f"point ({x:.1f}, {y:.1f}), ground {hb.ground_z_m[0]:.1f} m, camera {hb.camera_height_m:g} m "
           f"above, planet {hb.planet.name}", file=out)
-    print(f"skyline over {az.size} bins: mean {np.nanmean(el):.2f} deg, min {np.nanmin(el):.2f} deg, "
-          f"max {el[k]:.2f} deg at azimuth {az[k]:.1f} deg", file=out)
+    if seen.any():
+        k = int(np.flatnonzero(seen)[np.argmax(el[seen])])
+        print(f"skyline over {az.size} bins ({int(seen.sum())} with terrain): mean {el[seen].mean():.2f} "
+              f"deg, min {el[seen].min():.2f} deg, max {el[k]:.2f} deg at azimuth {az[k]:.1f} deg",
+              file=out)
+    else:
+        print(f"skyline over {az.size} bins: no terrain in any direction (the point is on the DEM's "
+              "edge and every ray leaves it)", file=out)
     print(f"rays reaching the DEM edge: {int(edge.sum())} of {az.size} (shortest {length.min():.0f} m)",
           file=out)
     names = ["N", "NE", "E", "SE", "S", "SW", "W", "NW"]
     sector = np.round(az / 45.0).astype(int) % 8  # sector i spans 45 i +- 22.5 deg
-    cells = [f"{n} {np.nanmax(el[sector == i]) if np.any(sector == i) else np.nan:+.1f}"
-             for i, n in enumerate(names)]
+    cells = []
+    for i, n in enumerate(names):
+        in_sector = sector == i
+        if not in_sector.any():
+            cells.append(f"{n} no bin")  # fewer than 8 --azimuth-bins
+        elif not (in_sector & seen).any():
+            cells.append(f"{n} no terrain")
+        else:
+            cells.append(f"{n} {el[in_sector & seen].max():+.1f}")
     print("highest per sector [deg]: " + ", ".join(cells), file=out)
 
 
@@ -81,11 +96,16 @@ def _plot(path, az, el, length, x, y, dem, max_distance_m):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .._io import atomic_path
+    from .._io import save_figure
 
     fig, ax = plt.subplots(figsize=(10, 3.2))
-    ax.fill_between(az, np.nan_to_num(el, nan=np.nanmin(el)), np.nanmin(el) - 1, color="0.45")
-    ax.plot(az, el, color="k", lw=1)
+    seen = np.isfinite(el)
+    if seen.any():  # NaN bins (no terrain) are gaps in the line, not a warning
+        low = float(el[seen].min())
+        ax.fill_between(az, np.where(seen, el, low), low - 1, where=seen, color="0.45")
+        ax.plot(az, el, color="k", lw=1)
+    else:
+        ax.text(0.5, 0.5, "no terrain in any direction", transform=ax.transAxes, ha="center")
     # Without --max-distance-m every ray runs to the DEM edge by design: nothing to flag.
     edge = length < max_distance_m * (1 - 1e-6) if max_distance_m else np.zeros(az.size, bool)
     if edge.any():
@@ -98,6 +118,7 @@ def _plot(path, az, el, length, x, y, dem, max_distance_m):
     ax.set_ylabel("elevation [deg]")
     ax.set_title(f"skyline at ({x:.0f}, {y:.0f}) {dem.crs_name}", fontsize=9)
     fig.tight_layout()
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=120)
+    finally:
+        plt.close(fig)

@@ -11,22 +11,30 @@ import sys
 import click
 
 from ..errors import ParameterError
+from .options import camera_height
+
+
+def _check_source(acq_dir, profile_path):
+    """Exactly one of ACQ_DIR and --profile (checked before any work)."""
+    if acq_dir is not None and profile_path is not None:
+        raise ParameterError(f"give an acquisition folder ({acq_dir}) or --profile ({profile_path}), "
+                             "not both: the profile would be used and the folder ignored")
+    if acq_dir is None and profile_path is None:
+        raise ParameterError("give an acquisition folder or --profile PROFILE.json")
 
 
 def _read_profile(acq_dir, profile_path):
-    """Profile from ``--profile`` JSON, else from the acquisition folder (prior attitude too)."""
+    """Profile from ``--profile`` JSON, else from the acquisition folder; with the attitude prior
+    (pitch, roll) [deg] and the camera height [m] (None when the profile does not say)."""
     from ..formats import load_acquisition, read_profile_json
 
+    _check_source(acq_dir, profile_path)
     if profile_path is not None:
-        prof = read_profile_json(profile_path)
-        if prof.frame != "body":
-            raise ParameterError(f"{profile_path}: locate needs a body-frame profile (frame 'body'), "
-                                 f"got '{prof.frame}'")
+        # the reader validates frame, attitude_prior and camera_height_m, naming the field
+        prof = read_profile_json(profile_path, frame="body")
         prior = prof.meta.get("attitude_prior") or {}
-        return prof, float(prior.get("pitch_deg", 0.0)), float(prior.get("roll_deg", 0.0)), \
+        return prof, prior.get("pitch_deg", 0.0), prior.get("roll_deg", 0.0), \
             prof.meta.get("camera_height_m")
-    if acq_dir is None:
-        raise ParameterError("give an acquisition folder or --profile PROFILE.json")
     acq = load_acquisition(acq_dir)
     try:
         from ..profile import acquisition_profile
@@ -37,12 +45,10 @@ def _read_profile(acq_dir, profile_path):
     return prof, acq.prior_pitch_deg, acq.prior_roll_deg, acq.camera_height_m
 
 
-def _write_outputs(fix, out, geojson, overwrite):
-    from .._io import check_can_write, to_json, write_json
+def _write_outputs(fix, out, geojson):
+    """The fix as JSON (``out``, else stdout) and GeoJSON; paths checked before any work."""
+    from .._io import to_json, write_json
 
-    for p in (out, geojson):
-        if p is not None:
-            check_can_write(p, overwrite)
     if out is not None:
         write_json(out, fix.to_dict())
     else:
@@ -78,7 +84,7 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from .._io import atomic_path
+    from .._io import save_figure
     from ..pose import body_profile
 
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
@@ -117,9 +123,10 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
     ax.set_xlabel("azimuth from forward axis [deg]")
     ax.set_ylabel("elevation [deg]")
     ax.legend()
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=110, bbox_inches="tight")
+    finally:
+        plt.close(fig)
 
 
 @click.command("locate")
@@ -134,25 +141,40 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
 @click.option("--prior-radius-m", type=float, help="Prior search radius [m].")
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Fix JSON (default stdout).")
 @click.option("--geojson", type=click.Path(dir_okay=False), help="Also write the fix as GeoJSON.")
-@click.option("--score-map", type=click.Path(dir_okay=False), help="Database score map GeoTIFF.")
-@click.option("--plot", type=click.Path(dir_okay=False), help="Score map and skyline overlay PNG.")
+@click.option("--score-map", type=click.Path(dir_okay=False),
+              help="Database score map GeoTIFF (.tif; needs --db).")
+@click.option("--plot", type=click.Path(dir_okay=False),
+              help="Score map and skyline overlay (.png, .jpg, .pdf or .svg).")
 @click.option("--preset", type=click.Choice(["fast", "exact", "level"]), default="fast",
               show_default=True, help="Matcher preset.")
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
 def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_radius_m, out,
            geojson, score_map, plot, preset, overwrite):
     """Find position, heading and attitude from an acquisition (or a profile)."""
-    from .._io import check_can_write
+    import math
 
-    for p in (out, geojson, score_map, plot):
-        if p is not None:
-            check_can_write(p, overwrite)
+    from .._io import GEOTIFF_SUFFIXES, PLOT_FORMATS, check_outputs
+
+    # Everything that can be refused is refused before the search (minutes) and before any
+    # output is written.
+    _check_source(acq_dir, profile_path)
     if (prior_x is None) != (prior_y is None):
         raise ParameterError("give both --prior-x and --prior-y")
-    if prior_radius_m is not None and not prior_radius_m > 0:
-        raise ParameterError(f"--prior-radius-m must be > 0, got {prior_radius_m}")
+    for name, v in (("--prior-x", prior_x), ("--prior-y", prior_y)):
+        if v is not None and not math.isfinite(v):
+            raise ParameterError(f"{name} must be a finite coordinate [m], got {v}")
+    if prior_radius_m is not None and not (math.isfinite(prior_radius_m) and prior_radius_m > 0):
+        raise ParameterError(f"--prior-radius-m must be a finite number of metres > 0, got {prior_radius_m}")
     if db_path is None and dem_path is None:
         raise ParameterError("give --db DB (and optionally --dem) or --dem with a prior area")
+    if db_path is None and (prior_x is None or prior_radius_m is None):
+        raise ParameterError("without --db give --prior-x, --prior-y and --prior-radius-m")
+    if db_path is not None and prior_x is not None and prior_radius_m is None:
+        raise ParameterError("--prior-x/--prior-y need --prior-radius-m")
+    if score_map is not None and db_path is None:
+        raise ParameterError("--score-map needs --db (the map is the database's score)")
+    check_outputs(overwrite, ("--output", out, None), ("--geojson", geojson, None),
+                  ("--score-map", score_map, GEOTIFF_SUFFIXES), ("--plot", plot, PLOT_FORMATS))
     prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path)
     from ..match import PRESETS
     from ..pose import PoseConfig, locate as _locate
@@ -166,19 +188,13 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_rad
         from ..dem import load_dem
 
         dem = load_dem(dem_path)
-    if db is None and (prior_x is None or prior_radius_m is None):
-        raise ParameterError("without --db give --prior-x, --prior-y and --prior-radius-m")
     prior = (prior_x, prior_y) if prior_x is not None else None
-    if prior is not None and prior_radius_m is None and db is not None:
-        raise ParameterError("--prior-x/--prior-y need --prior-radius-m")
     fix, mres = _locate(prof, db=db, dem=dem, prior_xy=prior, prior_radius_m=prior_radius_m,
                         prior_pitch_deg=pp, prior_roll_deg=pr,
                         camera_height_m=None if db is not None else cam_h,
                         config=PoseConfig(match=PRESETS[preset]), return_match=True)
-    _write_outputs(fix, out, geojson, overwrite=True)
+    _write_outputs(fix, out, geojson)
     if score_map is not None:
-        if mres is None:
-            raise ParameterError("--score-map needs --db (the map is the database's score)")
         _write_score_map(score_map, mres, db)
     if plot is not None:
         _plot(plot, fix, mres, db, dem, prof)
@@ -194,26 +210,39 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_rad
 @click.option("--dem", "dem_path", required=True, type=click.Path(dir_okay=False))
 @click.option("--x", "x", required=True, type=float, help="Rough position x [m].")
 @click.option("--y", "y", required=True, type=float, help="Rough position y [m].")
-@click.option("--heading-prior-deg", required=True, type=float, help="Heading prior [deg].")
+@click.option("--heading-prior-deg", required=True, type=float,
+              help="Heading prior [deg], clockwise from grid north.")
 @click.option("--window-deg", default=10.0, show_default=True, type=float,
               help="Search +/- this around the prior [deg].")
-@click.option("--camera-height-m", type=float, help="Camera height [m] (default: the acquisition's).")
-@click.option("-o", "--output", "out", type=click.Path(dir_okay=False))
-@click.option("--overwrite", is_flag=True)
+@click.option("--camera-height-m", type=float, callback=camera_height,
+              help="Camera height [m] (default: the acquisition's).")
+@click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Heading JSON (default stdout).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 def heading(acq_dir, profile_path, dem_path, x, y, heading_prior_deg, window_deg,
             camera_height_m, out, overwrite):
     """Find the heading only, from a rough position."""
-    from .._io import check_can_write, to_json, write_json
-    from ..dem import load_dem
-    from ..pose import estimate_heading
+    import math
 
-    if out is not None:
-        check_can_write(out, overwrite)
+    from .._io import check_outputs, to_json, write_json
+    from ..dem import load_dem
+    from ..pose import at_window_edge, estimate_heading
+
+    _check_source(acq_dir, profile_path)
+    for name, v in (("--x", x), ("--y", y), ("--heading-prior-deg", heading_prior_deg)):
+        if not math.isfinite(v):
+            raise ParameterError(f"{name} must be a finite number, got {v}")
+    if not (math.isfinite(window_deg) and 0 < window_deg <= 180):
+        raise ParameterError(f"--window-deg must be within (0, 180] deg, got {window_deg}")
+    check_outputs(overwrite, ("--output", out, None))
     prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path)
     dem = load_dem(dem_path)
     h = camera_height_m if camera_height_m is not None else (cam_h if cam_h is not None else 1.5)
     hf = estimate_heading(prof, dem, x, y, heading_prior_deg, window_deg, camera_height_m=h,
                           prior_pitch_deg=pp, prior_roll_deg=pr)
+    if window_deg < 180 and at_window_edge(hf.heading_deg, heading_prior_deg, window_deg):
+        click.echo(f"warning: the heading {hf.heading_deg:.1f} deg is on the edge of the window "
+                   f"{heading_prior_deg:g} +- {window_deg:g} deg: the best match lies outside it "
+                   "(confidence capped); check the prior or widen --window-deg", err=True)
     if out is not None:
         write_json(out, hf.to_dict())
     else:

@@ -2,7 +2,8 @@
 
 Subcommands are imported only when invoked, so ``skyfix --help`` stays instant and heavy
 modules (numba, cv2, dask, matplotlib) load only for the command that needs them. A
-:class:`~skyfix.errors.SkyfixError` is printed as one line and exits with status 2.
+:class:`~skyfix.errors.SkyfixError` (or an OS error: a disk or permission problem) is printed
+as one line and exits with status 2.
 """
 
 from __future__ import annotations
@@ -61,6 +62,16 @@ class LazyGroup(click.Group):
             return super().invoke(ctx)
         except SkyfixError as e:
             raise UserError(str(e)) from None
+        except BrokenPipeError:
+            raise  # stdout piped into `head`: click handles it
+        except OSError as e:
+            # Writers turn their own OS errors into SkyfixError ("cannot write PATH: ..."); one
+            # that still escapes is the environment's (a file vanished, a disk failed, a folder
+            # turned read-only) and gets a line, not a traceback. -vv logs the traceback.
+            logging.getLogger("skyfix").debug("OS error", exc_info=True)
+            where = f": {e.filename}" if e.filename else ""
+            raise UserError(f"{e.strerror or e}{where} "
+                            "(check the path, its permissions and free disk space)") from None
 
 
 class UserError(click.ClickException):

@@ -17,8 +17,25 @@ def _planet(ctx, param, value):
         raise click.BadParameter(str(e)) from None
 
 
+def camera_height(ctx, param, value):
+    """Click callback: a camera height [m] that is finite and within 0 .. MAX_CAMERA_HEIGHT_M."""
+    import math
+
+    from ..formats import MAX_CAMERA_HEIGHT_M
+
+    if value is None:
+        return None
+    if not (math.isfinite(value) and 0 <= value <= MAX_CAMERA_HEIGHT_M):
+        why = (" (higher up, the skyline is the planet's limb, not the DEM's terrain)"
+               if value > MAX_CAMERA_HEIGHT_M else "")
+        raise click.BadParameter(
+            f"camera height must be within 0 to {MAX_CAMERA_HEIGHT_M:g} m above the ground, "
+            f"got {value:g}{why}")
+    return value
+
+
 camera_height_option = click.option(
-    "--camera-height-m", type=float, default=1.5, show_default=True,
+    "--camera-height-m", type=float, default=1.5, show_default=True, callback=camera_height,
     help="Camera centre above the ground [m].")
 planet_option = click.option(
     "--planet", default="earth", show_default=True, callback=_planet,

@@ -17,17 +17,16 @@ import click
 @click.option("--detector", default="dp", show_default=True, help="Skyline detection method.")
 @click.option("--no-refine", is_flag=True, help="Keep the nominal pan angles (project).")
 @click.option("-o", "--output", type=click.Path(path_type=Path), help="Profile JSON (default: stdout).")
-@click.option("--plot", type=click.Path(path_type=Path), help="Also draw the profile to this PNG.")
+@click.option("--plot", type=click.Path(path_type=Path),
+              help="Also draw the profile to this file (.png, .jpg, .pdf or .svg).")
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
 def profile(acq_dir, method, azimuth_bins, detector, no_refine, output, plot, overwrite):
     """Turn the acquisition in ACQ_DIR into an angular skyline profile in the rover's body frame."""
-    from .._io import check_can_write, to_json
+    from .._io import PLOT_FORMATS, check_outputs, to_json
     from ..formats import load_acquisition, write_profile_json
     from ..profile import PanRefinement, acquisition_profile
 
-    for path in (output, plot):
-        if path is not None:
-            check_can_write(path, overwrite)
+    check_outputs(overwrite, ("--output", output, None), ("--plot", plot, PLOT_FORMATS))
     acq = load_acquisition(acq_dir)
     prof = acquisition_profile(acq, method=method, azimuth_bins=azimuth_bins, detector=detector,
                                refine=PanRefinement(enabled=not no_refine))
@@ -43,14 +42,15 @@ def profile(acq_dir, method, azimuth_bins, detector, no_refine, output, plot, ov
 
 
 def plot_profile(prof, path, title: str = "") -> None:
-    """Elevation vs body azimuth with a 2-sigma band, written atomically to ``path`` (PNG)."""
+    """Elevation [deg] vs body azimuth [deg] with a 2-sigma band, written atomically to ``path``
+    in the format its suffix names (PNG, JPEG, PDF or SVG)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from .._io import atomic_path
+    from .._io import save_figure
 
     az = prof.azimuth_deg
     el = prof.elevation_deg
@@ -65,6 +65,7 @@ def plot_profile(prof, path, title: str = "") -> None:
     ax.set_title(title)
     ax.legend(loc="upper right")
     fig.tight_layout()
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=100)
+    finally:
+        plt.close(fig)

@@ -1,0 +1,534 @@
+"""Bad input at the CLI's edges: one clear line and exit status 2, never a traceback, a silent
+wrong answer or a half-written set of outputs.
+
+The slow stages (detection, the profile, the search) are replaced by stubs where a test is about
+what happens around them: each test here is about refusing before the work, or about a reader.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from conftest import plane_dem, shared_dem_path
+from skyfix.cli.main import cli
+from skyfix.errors import SkyfixError
+from skyfix.formats import Profile, Skyline, load_acquisition, read_profile_json, read_skyline_json
+
+
+def run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def assert_clean_error(result, *needles):
+    """Exit status 2, one ``Error:`` line holding every needle, no traceback."""
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    for needle in needles:
+        assert needle in result.output, result.output
+
+
+# --- fixtures and stubs ----------------------------------------------------------------------------
+
+@pytest.fixture
+def image(tmp_path):
+    """A 64 x 48 px RGB PNG."""
+    import cv2
+
+    path = tmp_path / "img.png"
+    cv2.imwrite(str(path), np.full((48, 64, 3), 120, np.uint8))
+    return path
+
+
+@pytest.fixture
+def stub_detect(monkeypatch):
+    """detect_skyline without the detector: a flat skyline at row 10."""
+    import skyfix.detect
+
+    calls = []
+
+    def fake(img, *, mask=None, method="dp", name="", **kw):
+        calls.append(name)
+        h, w = img.shape[:2]
+        return Skyline(np.full(w, 10.0), w, h, name, np.ones(w), np.ones(w, bool))
+
+    monkeypatch.setattr(skyfix.detect, "detect_skyline", fake)
+    return calls
+
+
+def body_profile_dict(n=360, **extra):
+    el = 5.0 + 3.0 * np.sin(np.radians(np.arange(n) * 3.0))
+    d = {"azimuth_deg": list(np.arange(n) * 360.0 / n), "elevation_deg": list(el),
+         "sigma_deg": [0.1] * n, "frame": "body"}
+    d.update(extra)
+    return d
+
+
+@pytest.fixture
+def profile_json(tmp_path):
+    def make(name="p.json", **fields):
+        path = tmp_path / name
+        path.write_text(json.dumps(body_profile_dict(**fields)))
+        return path
+
+    return make
+
+
+@pytest.fixture
+def stub_profile(monkeypatch):
+    """acquisition_profile without detection: the body profile of ``body_profile_dict``."""
+    import skyfix.profile
+
+    d = body_profile_dict()
+    prof = Profile(np.array(d["elevation_deg"]), np.array(d["sigma_deg"]), "body", {"method": "stub"})
+    monkeypatch.setattr(skyfix.profile, "acquisition_profile", lambda acq, **kw: prof)
+
+
+class _Fix:
+    x, y, heading_deg, pitch_deg, roll_deg, confidence = 500.0, 500.0, 10.0, 0.0, 0.0, 0.5
+    candidates = ()
+
+    def to_dict(self):
+        return {"x": self.x, "y": self.y, "heading_deg": self.heading_deg}
+
+    def to_geojson(self):
+        return {"type": "Feature", "geometry": {"type": "Point", "coordinates": [self.x, self.y]},
+                "properties": {}}
+
+
+@pytest.fixture
+def stub_locate(monkeypatch):
+    """pose.locate without the search; records its calls."""
+    import skyfix.pose
+
+    calls = []
+
+    def fake(profile, **kw):
+        calls.append(kw)
+        return (_Fix(), None) if kw.get("return_match") else _Fix()
+
+    monkeypatch.setattr(skyfix.pose, "locate", fake)
+    return calls
+
+
+@pytest.fixture
+def dem_file(tmp_dem_file):
+    return tmp_dem_file(plane_dem(1_000, 10, slope_x=0.05))
+
+
+def write_acq(root: Path, **changes) -> Path:
+    """A one-frame acquisition (its image a placeholder); ``changes`` replace top-level fields,
+    ``camera__cx=...`` style keys a camera field, ``frame__tilt_deg`` the frame's."""
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "f.png").write_bytes(b"placeholder")
+    d = {"camera": {"width": 1024, "height": 1024, "fx": 1236.0, "fy": 1236.0, "cx": 511.5,
+                    "cy": 511.5, "distortion": {"k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "k3": 0.0}},
+         "camera_height_m": 1.5, "frames": [{"image": "f.png", "pan_deg": 0.0, "tilt_deg": 0.0}],
+         "attitude_prior": {"pitch_deg": 0.0, "roll_deg": 0.0}}
+    for key, v in changes.items():
+        if key.startswith("camera__dist__"):
+            d["camera"]["distortion"][key[len("camera__dist__"):]] = v
+        elif key.startswith("camera__"):
+            d["camera"][key[len("camera__"):]] = v
+        elif key.startswith("frame__"):
+            d["frames"][0][key[len("frame__"):]] = v
+        elif key.startswith("pano__"):
+            d.pop("frames", None)
+            d.pop("camera", None)
+            d.setdefault("panorama", {"image": "f.png"})[key[len("pano__"):]] = v
+        else:
+            d[key] = v
+    (root / "acquisition.json").write_text(json.dumps(d))
+    return root
+
+
+# --- 1. unwritable outputs --------------------------------------------------------------------------
+
+@pytest.fixture
+def a_file(tmp_path):
+    f = tmp_path / "plain.json"
+    f.write_text("{}")
+    return f
+
+
+def test_output_under_a_file_is_one_line_in_every_command(tmp_path, a_file, image, dem_file,
+                                                          profile_json, stub_detect, stub_profile,
+                                                          stub_locate):
+    bad = a_file / "out.json"
+    plot = a_file / "out.png"
+    acq = write_acq(tmp_path / "acq")
+    prof = profile_json()
+    cases = [
+        ("detect", image, "-o", bad),
+        ("detect", image, "--plot", plot),
+        ("horizon", dem_file, "--x", 500, "--y", 500, "--plot", plot),
+        ("profile", acq, "-o", bad),
+        ("profile", acq, "--plot", plot),
+        ("locate", "--profile", prof, "--dem", dem_file, "--prior-x", 500, "--prior-y", 500,
+         "--prior-radius-m", 4, "-o", bad),
+        ("locate", "--profile", prof, "--dem", dem_file, "--prior-x", 500, "--prior-y", 500,
+         "--prior-radius-m", 4, "--geojson", bad),
+        ("locate", "--profile", prof, "--dem", dem_file, "--prior-x", 500, "--prior-y", 500,
+         "--prior-radius-m", 4, "--plot", plot),
+        ("heading", "--profile", prof, "--dem", dem_file, "--x", 500, "--y", 500,
+         "--heading-prior-deg", 0, "-o", bad),
+        ("evaluate-detect", "--images", tmp_path, "-o", a_file / "t.csv"),
+    ]
+    for args in cases:
+        assert_clean_error(run(*args), "cannot write", f"{a_file} is a file, not a folder")
+    assert stub_detect == [] and stub_locate == []  # refused before any work
+
+
+def test_read_only_folder_is_one_line(tmp_path, image, stub_detect, monkeypatch):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real = tempfile.mkstemp
+
+    def mkstemp(*a, dir=None, **kw):  # a read-only file system, which even root cannot write
+        if dir is not None and Path(dir) == ro:
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(dir))
+        return real(*a, dir=dir, **kw)
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+    assert_clean_error(run("detect", image, "-o", ro / "s.json"), f"cannot write {ro / 's.json'}",
+                       "Read-only file system")
+    assert stub_detect == []
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root writes anywhere")
+def test_unwritable_folder_is_one_line(tmp_path, image, stub_detect):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        assert_clean_error(run("detect", image, "-o", ro / "s.json"), "cannot write", "not writable")
+    finally:
+        ro.chmod(0o755)
+
+
+def test_a_write_that_fails_late_is_a_clear_error_and_keeps_the_old_file(tmp_path, monkeypatch):
+    """A failure after the checks (disk full, the folder turned read-only): SkyfixError, the
+    previous file untouched, no temporary file left behind."""
+    from skyfix import _io
+
+    out = tmp_path / "fix.json"
+    out.write_text('{"old": 1}\n')
+
+    def no_replace(src, dst):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(src))
+
+    monkeypatch.setattr(_io.os, "replace", no_replace)
+    with pytest.raises(SkyfixError, match=r"cannot write .*fix\.json: No space left"):
+        _io.write_json(out, {"new": 2})
+    assert json.loads(out.read_text()) == {"old": 1}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fix.json"]
+
+
+def test_os_error_escaping_a_command_is_one_line(tmp_path, a_file, dem_file):
+    """build-db's store is created by skyfix.database: an OS error there still gets a line."""
+    r = run("build-db", dem_file, "-o", a_file / "db.zarr", "--bounds", 400, 400, 600, 600,
+            "--spacing-m", 100, "--workers", 0, "--no-progress")
+    assert_clean_error(r, "Error:")
+
+
+def test_missing_output_folder_is_refused_not_created(tmp_path, dem_file, image, stub_detect):
+    missing = tmp_path / "no" / "such"
+    assert_clean_error(run("horizon", dem_file, "--x", 500, "--y", 500, "--plot", missing / "p.png"),
+                       f"folder {missing} does not exist")
+    assert_clean_error(run("detect", image, "-o", missing / "s.json"), "does not exist")
+    assert not (tmp_path / "no").exists()
+
+
+# --- 2. an output that is a folder -----------------------------------------------------------------
+
+def test_output_that_is_a_folder_says_so(tmp_path, stub_profile):
+    acq = write_acq(tmp_path / "acq")
+    adir = tmp_path / "adir"
+    adir.mkdir()
+    for extra in ((), ("--overwrite",)):
+        r = run("profile", acq, "-o", adir, *extra)
+        assert_clean_error(r, f"cannot write {adir}: it is a folder")
+        assert "--overwrite" not in r.output
+
+
+# --- 3. every output checked before any work --------------------------------------------------------
+
+def test_no_output_is_written_when_another_cannot_be(tmp_path, a_file, image, dem_file, profile_json,
+                                                     stub_detect, stub_profile, stub_locate):
+    first = tmp_path / "first.json"
+    acq = write_acq(tmp_path / "acq")
+    prof = profile_json()
+    loc = ("locate", "--profile", prof, "--dem", dem_file, "--prior-x", 500, "--prior-y", 500,
+           "--prior-radius-m", 4, "-o", first)
+    for args in [("detect", image, "-o", first, "--plot", a_file / "x.png"),
+                 ("profile", acq, "-o", first, "--plot", a_file / "p.png"),
+                 (*loc, "--geojson", a_file / "f.geojson"),
+                 (*loc, "--score-map", a_file / "s.tif"),
+                 (*loc, "--plot", a_file / "p.png")]:
+        assert_clean_error(run(*args), "Error:")
+        assert not first.exists(), args
+    assert stub_detect == [] and stub_locate == []
+
+
+def test_score_map_without_db_is_refused_before_the_search(tmp_path, dem_file, profile_json,
+                                                          stub_locate):
+    out = tmp_path / "fix.json"
+    r = run("locate", "--profile", profile_json(), "--dem", dem_file, "--prior-x", 500, "--prior-y",
+            500, "--prior-radius-m", 4, "-o", out, "--score-map", tmp_path / "s.tif")
+    assert_clean_error(r, "--score-map needs --db")
+    assert stub_locate == [] and not out.exists()
+
+
+def test_two_options_naming_one_file_are_refused(tmp_path, dem_file, profile_json, stub_locate):
+    same = tmp_path / "fix.json"
+    r = run("locate", "--profile", profile_json(), "--dem", dem_file, "--prior-x", 500, "--prior-y",
+            500, "--prior-radius-m", 4, "-o", same, "--geojson", same)
+    assert_clean_error(r, "--output and --geojson both name")
+    assert stub_locate == []
+
+
+def test_plot_and_score_map_suffixes(tmp_path, dem_file, profile_json, stub_locate):
+    prof = profile_json()
+    assert_clean_error(run("locate", "--profile", prof, "--db", tmp_path / "db.zarr", "--score-map",
+                           tmp_path / "s.png"), "end it with .tif")
+    assert_clean_error(run("locate", "--profile", prof, "--dem", dem_file, "--prior-x", 500,
+                           "--prior-y", 500, "--prior-radius-m", 4, "--plot", tmp_path / "p.gif"),
+                       "end it with .png")
+    assert stub_locate == []
+
+
+# --- 4. impossible acquisition values -------------------------------------------------------------
+
+@pytest.mark.parametrize("changes, field", [
+    ({"pano__elevation_top_deg": 200}, "panorama.elevation_top_deg"),
+    ({"pano__elevation_top_deg": -80, "pano__vfov_deg": 60}, "below the nadir"),
+    ({"frame__tilt_deg": 400}, "frames[0].tilt_deg"),
+    ({"camera__cx": 5000}, "camera.cx"),
+    ({"camera__cy": -900}, "camera.cy"),
+    ({"camera__dist__k1": 50}, "camera.distortion k1=50"),
+    ({"camera__dist__k1": -3}, "camera.distortion k1=-3"),  # folds the image over
+    ({"camera__dist__p2": 1.0}, "camera.distortion.p2"),
+    ({"camera_height_m": 1e9}, "camera_height_m"),
+    ({"camera_height_m": "tall"}, "camera_height_m"),
+    ({"attitude_prior": {"pitch_deg": 80}}, "attitude_prior.pitch_deg"),
+    ({"attitude_prior": {"pitch_deg": None}}, "attitude_prior.pitch_deg"),
+    ({"attitude_prior": {"roll_deg": "a"}}, "attitude_prior.roll_deg"),
+    ({"attitude_prior": 5}, "attitude_prior must be an object"),
+])
+def test_impossible_acquisition_values_name_the_field(tmp_path, changes, field):
+    root = write_acq(tmp_path / "acq", **changes)
+    with pytest.raises(SkyfixError) as e:
+        load_acquisition(root)
+    assert field in str(e.value)
+
+
+@pytest.mark.parametrize("changes", [
+    {},
+    {"frame__tilt_deg": 90.0},
+    {"frame__tilt_deg": -35.0, "frame__pan_deg": 400.0},  # a pan past 360 is the same direction
+    {"camera__cx": 540.0, "camera__cy": 470.0},  # a few per cent off centre
+    {"camera__dist__k1": -0.3, "camera__dist__k2": 0.1, "camera__dist__p1": 1e-3,
+     "camera__dist__k3": -0.02},
+    {"camera__fx": 300.0, "camera__fy": 300.0, "camera__dist__k1": -0.25, "camera__dist__k2": 0.05},  # 120 deg
+    {"camera__fx": 5000.0, "camera__fy": 5000.0, "camera__dist__k3": 100.0},  # narrow: r**6 is tiny
+    {"pano__elevation_top_deg": 90.0, "pano__vfov_deg": 180.0},
+    {"pano__elevation_top_deg": -10.0, "pano__vfov_deg": 40.0},
+    {"attitude_prior": {"pitch_deg": -12.5, "roll_deg": 59.0}},
+    {"attitude_prior": None},
+    {"camera_height_m": 0.0},
+])
+def test_plausible_acquisitions_still_load(tmp_path, changes):
+    load_acquisition(write_acq(tmp_path / "acq", **changes))
+
+
+def test_profile_command_names_the_bad_field(tmp_path, stub_profile):
+    assert_clean_error(run("profile", write_acq(tmp_path / "a", frame__tilt_deg=400)), "frames[0].tilt_deg")
+    assert_clean_error(run("profile", write_acq(tmp_path / "b", pano__elevation_top_deg=200)),
+                       "panorama.elevation_top_deg")
+
+
+# --- 5. skyline JSON --------------------------------------------------------------------------------
+
+def _skyline(tmp_path, **changes):
+    d = {"image": "a.png", "width": 4, "height": 10, "rows": [1.0, 2.5, None, 9.4]}
+    d.update(changes)
+    for k in [k for k, v in d.items() if v is Ellipsis]:
+        del d[k]
+    path = tmp_path / "a.skyline.json"
+    path.write_text(json.dumps(d))
+    return path
+
+
+@pytest.mark.parametrize("changes, needle", [
+    ({"valid": "yes"}, "'valid' must be a list of 4 true/false values"),
+    ({"valid": [True, False]}, "it has 2"),
+    ({"valid": [1, 0, 1, 1]}, "valid[0] is 1"),
+    ({"rows": [1.0, 2.0, 11.0, 3.0]}, "rows[2] = 11"),
+    ({"rows": [1.0, -5.0, 2.0, 3.0]}, "rows[1] = -5"),
+    ({"rows": [1.0, "x", 2.0, 3.0]}, "rows[1] must be a finite number"),
+    ({"width": 5}, "'width' is 5 but 'rows' has 4 entries"),
+    ({"height": 0}, "'height' must be a whole number"),
+    ({"height": Ellipsis}, "missing field 'height'"),
+    ({"confidence": [0.5, 2.0, None, 1.0]}, "confidence[1] = 2"),
+    ({"confidence": [0.5]}, "'confidence' has 1 entries"),
+    ({"rows": "1,2,3,4"}, "'rows' must be a non-empty list"),
+])
+def test_bad_skyline_json_names_the_field(tmp_path, changes, needle):
+    with pytest.raises(SkyfixError) as e:
+        read_skyline_json(_skyline(tmp_path, **changes))
+    assert needle in str(e.value)
+
+
+def test_good_skyline_json_reads(tmp_path):
+    sk = read_skyline_json(_skyline(tmp_path, valid=[True, True, False, True],
+                                    confidence=[1.0, 0.5, None, 0.0]))
+    assert sk.width == 4 and sk.height == 10 and np.isnan(sk.rows[2]) and sk.valid.sum() == 3
+    assert read_skyline_json(_skyline(tmp_path, width=Ellipsis)).width == 4  # width optional
+
+
+# --- 6. profile JSON --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("changes, needle", [
+    ({"attitude_prior": {"pitch_deg": None, "roll_deg": 0}}, "attitude_prior.pitch_deg must be a finite"),
+    ({"attitude_prior": {"pitch_deg": "a", "roll_deg": 0}}, "attitude_prior.pitch_deg must be a finite"),
+    ({"attitude_prior": 3}, "attitude_prior must be an object"),
+    ({"camera_height_m": "tall"}, "camera_height_m must be a finite number"),
+    ({"camera_height_m": -1}, "camera_height_m must be within 0"),
+    ({"elevation_deg": [1.0] * 359 + [200.0]}, "elevation_deg[359] = 200"),
+    ({"sigma_deg": [0.1] * 10}, "'sigma_deg' has 10 entries, must have 360"),
+    ({"sigma_deg": [0.0] * 360}, "sigma_deg[0] = 0"),
+    ({"azimuth_deg": [0.0, 1.0]}, "'azimuth_deg' has 2 entries"),
+    ({"frame": "up"}, "'frame' must be 'body'"),
+])
+def test_bad_profile_json_names_the_field(tmp_path, profile_json, changes, needle):
+    with pytest.raises(SkyfixError) as e:
+        read_profile_json(profile_json(**changes))
+    assert needle in str(e.value)
+
+
+def test_heading_and_locate_with_a_bad_profile_field(tmp_path, dem_file, profile_json, stub_locate):
+    bad = profile_json(attitude_prior={"pitch_deg": "a", "roll_deg": 0.0})
+    assert_clean_error(run("heading", "--profile", bad, "--dem", dem_file, "--x", 500, "--y", 500,
+                           "--heading-prior-deg", 10), "attitude_prior.pitch_deg")
+    tall = profile_json("tall.json", camera_height_m="tall")
+    assert_clean_error(run("heading", "--profile", tall, "--dem", dem_file, "--x", 500, "--y", 500,
+                           "--heading-prior-deg", 10), "camera_height_m")
+    world = tmp_path / "world.json"
+    world.write_text(json.dumps({k: v for k, v in body_profile_dict().items() if k != "frame"}))
+    assert_clean_error(run("locate", "--profile", world, "--dem", dem_file, "--prior-x", 500,
+                           "--prior-y", 500, "--prior-radius-m", 4), "has no 'frame' field",
+                       "'body'-frame profile")
+    assert stub_locate == []
+
+
+# --- 7. priors --------------------------------------------------------------------------------------
+
+def test_prior_radius_too_large_or_not_finite(dem_file, profile_json):
+    prof = profile_json()
+    base = ("locate", "--profile", prof, "--dem", dem_file, "--prior-x", 500, "--prior-y", 500)
+    assert_clean_error(run(*base, "--prior-radius-m", 1e7), "build a database", "--prior-radius-m")
+    for v in ("inf", "nan"):
+        assert_clean_error(run(*base, "--prior-radius-m", v), "--prior-radius-m must be a finite")
+    assert_clean_error(run("locate", "--profile", prof, "--dem", dem_file, "--prior-x", "nan",
+                           "--prior-y", 500, "--prior-radius-m", 4), "--prior-x must be a finite")
+
+
+def test_prior_area_is_clipped_to_the_dem():
+    """A radius reaching past the DEM searches the DEM's part only (no cost beyond it)."""
+    from skyfix.pose import _prior_grid
+
+    dem = plane_dem(100, 10)
+    gx, gy = _prior_grid(dem, (50.0, 50.0), 1e6, 2.0)
+    assert gx.min() >= 0 and gx.max() <= 100 and gy.min() >= 0 and gy.max() <= 100
+    assert gx.size == 51 * 51
+
+
+@pytest.mark.parametrize("v", ["nan", "inf", "-inf"])
+def test_heading_prior_must_be_finite(dem_file, profile_json, v):
+    assert_clean_error(run("heading", "--profile", profile_json(), "--dem", dem_file, "--x", 500,
+                           "--y", 500, "--heading-prior-deg", v), "--heading-prior-deg must be a finite")
+
+
+def test_heading_stays_in_its_window():
+    """Truth 15 deg from the prior, window +-10: the answer is the window's edge, not the truth
+    outside it (it was), and its confidence says the best lies beyond."""
+    from skyfix import pose
+    from skyfix.dem import load_dem
+
+    dem = load_dem(shared_dem_path("south_glacier_20m"))
+    x, y = 601_500.0, 6_744_000.0
+    prof = pose.synthetic_profile(dem, x, y, 80.0, noise_deg=0.05, rng=1)
+    h = pose.estimate_heading(prof, dem, x, y, 95.0, 10.0)
+    d = (h.heading_deg - 95.0 + 180.0) % 360.0 - 180.0
+    assert -10.0 - 1e-6 <= d <= 10.0 + 1e-6  # was -15: the truth, outside the window
+    assert h.confidence <= pose.PINNED_HEADING_CONFIDENCE
+    inside = pose.estimate_heading(prof, dem, x, y, 86.0, 10.0)  # truth inside: found, not capped
+    assert abs(inside.heading_deg - 80.0) < 0.5 and inside.confidence > pose.PINNED_HEADING_CONFIDENCE
+
+
+# --- 8. plot formats --------------------------------------------------------------------------------
+
+def test_plot_is_written_in_the_format_its_suffix_names(tmp_path, dem_file):
+    jpg = tmp_path / "p.jpg"
+    r = run("horizon", dem_file, "--x", 500, "--y", 500, "--plot", jpg)
+    assert r.exit_code == 0, r.output
+    assert jpg.read_bytes()[:2] == b"\xff\xd8"  # JPEG, not PNG bytes under a .jpg name
+    gif = tmp_path / "p.gif"
+    assert_clean_error(run("horizon", dem_file, "--x", 500, "--y", 500, "--plot", gif), "'.gif'")
+    assert not gif.exists()
+
+
+# --- 9. smaller ones --------------------------------------------------------------------------------
+
+def test_locate_refuses_a_folder_and_a_profile(tmp_path, dem_file, profile_json, stub_locate):
+    acq = write_acq(tmp_path / "acq")
+    assert_clean_error(run("locate", acq, "--profile", profile_json(), "--dem", dem_file, "--prior-x",
+                           500, "--prior-y", 500, "--prior-radius-m", 4), "not both")
+    assert_clean_error(run("heading", acq, "--profile", profile_json(), "--dem", dem_file, "--x", 500,
+                           "--y", 500, "--heading-prior-deg", 0), "not both")
+    assert stub_locate == []
+
+
+def test_detect_sizes_are_width_x_height(tmp_path, stub_detect):
+    import cv2
+
+    wide = tmp_path / "wide.png"
+    cv2.imwrite(str(wide), np.full((3, 500, 3), 100, np.uint8))
+    assert_clean_error(run("detect", wide), "500 x 3 px (width x height)", "at least 2 x 8 px")
+
+
+def test_detect_refuses_an_all_zero_mask(tmp_path, image, stub_detect):
+    import cv2
+
+    mask = tmp_path / "mask.png"
+    cv2.imwrite(str(mask), np.zeros((48, 64), np.uint8))
+    assert_clean_error(run("detect", image, "--mask", mask), "no non-zero pixel")
+    assert stub_detect == []
+
+
+def test_horizon_at_a_dem_corner_has_no_nan_and_no_warning(tmp_dem_file, tmp_path):
+    path = tmp_dem_file(plane_dem(1_000, 10, slope_x=0.2, slope_y=0.2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's "All-NaN slice" was leaking
+        r = run("horizon", path, "--x", 0, "--y", 0, "--plot", tmp_path / "c.png")
+        r1 = run("horizon", path, "--x", 500, "--y", 500, "--azimuth-bins", 1)
+    assert r.exit_code == 0, r.output
+    assert "nan" not in r.output and "no terrain" in r.output
+    assert r1.exit_code == 0, r1.output
+    assert "nan" not in r1.output and "NE no bin" in r1.output
+
+
+def test_horizon_refuses_an_absurd_camera_height(dem_file):
+    assert_clean_error(run("horizon", dem_file, "--x", 500, "--y", 500, "--camera-height-m", 1e9),
+                       "camera height must be within 0 to 100000 m")
+    r = run("horizon", dem_file, "--x", 500, "--y", 500, "--camera-height-m", 1e5, "--json")
+    assert r.exit_code == 0, r.output
