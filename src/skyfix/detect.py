@@ -56,6 +56,9 @@ from .formats import Skyline
 
 METHODS = ("dp", "bayes")
 
+#: smallest image searched, width x height [px]
+MIN_WIDTH_PX, MIN_HEIGHT_PX = 2, 8
+
 _BIG = 1e18
 
 
@@ -412,8 +415,10 @@ def _as_gray_rgb(image):
     else:
         raise ParameterError(
             f"image must be H x W (grey) or H x W x 3 (RGB), got shape {img.shape}")
-    if img.shape[0] < 8 or img.shape[1] < 2:
-        raise ParameterError(f"image of {img.shape[0]} x {img.shape[1]} px is too small to search")
+    h, w = img.shape[:2]
+    if w < MIN_WIDTH_PX or h < MIN_HEIGHT_PX:
+        raise ParameterError(f"image of {w} x {h} px (width x height) is too small to search: "
+                             f"at least {MIN_WIDTH_PX} x {MIN_HEIGHT_PX} px")
     return img, gray, rgb
 
 

@@ -10,8 +10,6 @@ import click
 from .._io import PLOT_FORMATS, check_outputs, to_json
 from ..errors import ParameterError, SkyfixError
 
-#: smallest image the detector searches, width x height [px] (skyfix.detect refuses less)
-MIN_WIDTH_PX, MIN_HEIGHT_PX = 2, 8
 
 
 def read_image(path) -> "np.ndarray":  # noqa: F821
@@ -28,6 +26,8 @@ def read_image(path) -> "np.ndarray":  # noqa: F821
         if img.shape[2] == 4:
             img = img[..., :3]
         img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    from ..detect import MIN_HEIGHT_PX, MIN_WIDTH_PX
+
     h, w = img.shape[:2]
     if w < MIN_WIDTH_PX or h < MIN_HEIGHT_PX:
         # W x H like every other size in skyfix's messages
