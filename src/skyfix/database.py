@@ -44,7 +44,7 @@ import shutil
 import time
 import warnings
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -74,6 +74,15 @@ BLOCK = 64
 SKIP_TOL_DEG = 0.002
 META_DIR = "_skyfix"
 MARKER_DIR = f"{META_DIR}/blocks"
+#: the per-position arrays, one chunk of each per block
+DATA_ARRAYS = ("elevation", "ground_z", "min_ray_m", "edge_bins")
+#: a build larger than this is refused up front (the 7 x 7 km area at 5 m is 1.96 M skylines, 425 MB)
+MAX_POSITIONS = 1_000_000_000
+#: [bytes] ... or whose estimated size on disk exceeds this
+MAX_BUILD_BYTES = 500e9
+#: compressed share of the raw int16 skylines (measured 171 B of 720 at 360 bins, see above; a bit
+#: pessimistic so that the estimate errs on the large side)
+_COMPRESSED_SHARE = 0.3
 
 
 # --- grid ------------------------------------------------------------------------------------------
@@ -108,9 +117,13 @@ class Grid:
                                  f"got {xmin} {ymin} {xmax} {ymax}")
         if int(block) != block or block < 1:
             raise ParameterError(f"block size must be a positive whole number, got {block}")
+        fx, fy = (xmax - xmin) / spacing_m, (ymax - ymin) / spacing_m
+        if not (math.isfinite(fx) and math.isfinite(fy)):  # a spacing of 1e-320 m overflows
+            raise ParameterError(f"spacing {spacing_m} m is far too small for bounds {xmin} {ymin} {xmax} "
+                                 f"{ymax}: raise --spacing-m")
         # The small slack keeps an exact multiple (7000 / 5) from losing its last position to rounding.
-        nx = int(math.floor((xmax - xmin) / spacing_m + 1e-9)) + 1
-        ny = int(math.floor((ymax - ymin) / spacing_m + 1e-9)) + 1
+        nx = int(math.floor(fx + 1e-9)) + 1
+        ny = int(math.floor(fy + 1e-9)) + 1
         return cls(xmin, ymax, spacing_m, ny, nx, int(block))
 
     @property
@@ -271,6 +284,33 @@ class InProcessExecutor(Executor):
         return f
 
 
+def check_executor_options(workers: int | None, scheduler: str | None) -> None:
+    """Refuse bad ``workers`` / ``scheduler`` values (before a build touches any file)."""
+    if workers is not None and scheduler is not None:
+        raise ParameterError("give either --workers or --scheduler, not both")
+    if workers is not None:
+        try:
+            ok = not isinstance(workers, bool) and int(workers) == workers and workers >= 0
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise ParameterError(f"--workers must be a whole number >= 0 (0: in this process), got {workers}")
+    if scheduler is not None:
+        why = "not a string"
+        if isinstance(scheduler, str):
+            from distributed.comm import get_address_host_port
+
+            # Parsed here, not left to Client(): a Client that fails on a malformed address (an
+            # unknown scheme) hangs for 40 s at exit closing itself, and prints a traceback.
+            try:
+                get_address_host_port(scheduler)
+                return
+            except ValueError as e:  # "missing port number", "unknown address scheme"
+                why = str(e)
+        raise ParameterError(f"--scheduler {scheduler!r} is not a Dask scheduler address ({why}): give "
+                             "tcp://HOST:PORT")
+
+
 def default_workers() -> int:
     try:
         return max(1, len(os.sched_getaffinity(0)))
@@ -287,20 +327,18 @@ def make_executor(workers: int | None = None, scheduler: str | None = None):
     scheduler : address of an existing Dask scheduler (``tcp://HOST:PORT``); its workers must see
         the DEM and the output at the same paths and import skyfix
     """
-    if workers is not None and scheduler is not None:
-        raise ParameterError("give either --workers or --scheduler, not both")
+    check_executor_options(workers, scheduler)
     if scheduler is None and workers == 0:
         yield InProcessExecutor(), 1, False
         return
-    if workers is not None and (int(workers) != workers or workers < 0):
-        raise ParameterError(f"workers must be a whole number >= 0, got {workers}")
     from dask.distributed import Client, LocalCluster
 
     if scheduler is not None:
         try:
             client = Client(scheduler, timeout="20s")
-        except OSError as e:
-            raise ParameterError(f"cannot reach the Dask scheduler at {scheduler}: {e}") from None
+        except (OSError, ValueError) as e:  # refused, unknown host, timed out
+            raise ParameterError(f"cannot reach the Dask scheduler at {scheduler}: {e} (is it running, "
+                                 "and is the address tcp://HOST:PORT right?)") from None
         with client:
             slots = max(1, sum(client.nthreads().values()))
             yield client.get_executor(pure=False), slots, True
@@ -312,6 +350,23 @@ def make_executor(workers: int | None = None, scheduler: str | None = None):
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                       silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         yield client.get_executor(pure=False), n, True
+
+
+def estimate_build_bytes(grid: Grid, azimuth_bins: int) -> float:
+    """[bytes] rough size on disk of a complete build (errs on the large side)."""
+    per = azimuth_bins * 2 * _COMPRESSED_SHARE + 10  # + ground_z, min_ray_m, edge_bins
+    return float(grid.ny) * float(grid.nx) * per
+
+
+def check_build_size(grid: Grid, azimuth_bins: int) -> None:
+    """Refuse a grid too large to be meant (a typo in --spacing-m), before any work."""
+    n = grid.ny * grid.nx
+    est = estimate_build_bytes(grid, azimuth_bins)
+    if n > MAX_POSITIONS or est > MAX_BUILD_BYTES:
+        raise ParameterError(
+            f"the grid has {n:,} positions ({grid.nx:,} x {grid.ny:,} at {grid.spacing_m:g} m), about "
+            f"{est / 1e9:,.0f} GB on disk: more than skyfix builds ({MAX_POSITIONS:,} positions or "
+            f"{MAX_BUILD_BYTES / 1e9:.0f} GB); raise --spacing-m or narrow --bounds")
 
 
 def build_params(*, dem_sha256: str, grid: Grid, bounds, camera_height_m: float, azimuth_bins: int,
@@ -368,14 +423,170 @@ def _create_store(out: Path, grid: Grid, bins: int, attrs: dict) -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _read_attrs(path: Path) -> dict | None:
-    """The root attributes if ``path`` looks like a skyfix database, else None."""
+def _root_state(path: Path) -> tuple[str, dict | str | None]:
+    """What ``path/zarr.json`` says: ``("ok", attrs)`` for a skyfix database, ``("damaged", why)``
+    for a zarr.json that exists but cannot be read (or is gone from beside our block markers),
+    ``("none", None)`` otherwise."""
+    f = path / "zarr.json"
+    if not f.is_file():
+        if (path / MARKER_DIR).is_dir():  # our bookkeeping is there: a database that lost its root
+            return "damaged", f"{f} is missing"
+        return "none", None
     try:
-        meta = json.loads((path / "zarr.json").read_text())
-    except (OSError, ValueError):
-        return None
-    attrs = meta.get("attributes") or {}
-    return attrs if attrs.get("format") == FORMAT else None
+        meta = json.loads(f.read_text())
+    except (OSError, ValueError) as e:  # truncated, empty, binary garbage, unreadable
+        why = "it is empty" if f.stat().st_size == 0 else f"{type(e).__name__}: {e}"
+        return "damaged", f"{f} cannot be read ({why})"
+    if not isinstance(meta, dict):
+        return "damaged", f"{f} holds a JSON {type(meta).__name__}, not an object"
+    attrs = meta.get("attributes")
+    if not isinstance(attrs, dict) or attrs.get("format") != FORMAT:
+        return "none", None
+    return "ok", attrs
+
+
+# What each recorded attribute must be: (dotted key, kind). Checked when a database is opened, so
+# that a hand-edited or corrupted zarr.json is named instead of failing deep in a computation.
+_ATTR_KINDS = (
+    ("grid", "object"), ("grid.x0", "number"), ("grid.y0", "number"), ("grid.spacing_m", "positive"),
+    ("grid.shape", "pair"), ("grid.block_shape", "pair"), ("azimuth_bins", "count"),
+    ("camera_height_m", "number"), ("max_distance_m", "number or null"), ("planet", "object"),
+    ("planet.name", "text"), ("planet.radius_m", "positive"), ("planet.refraction_k", "number"),
+    ("elevation", "object"), ("elevation.scale_deg", "positive"), ("elevation.missing", "integer"),
+    ("dem", "object"), ("dem.sha256", "text"), ("dem.source", "text"), ("crs_wkt", "text"),
+    ("build", "object"),
+)
+_KIND_WORDS = {"object": "an object", "number": "a number", "positive": "a number > 0",
+               "count": "a whole number > 0", "integer": "a whole number",
+               "pair": "two whole numbers > 0", "text": "a string", "number or null": "a number or null"}
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _attr_ok(kind: str, v) -> bool:
+    if kind == "object":
+        return isinstance(v, dict)
+    if kind == "number":
+        return _is_number(v)
+    if kind == "positive":
+        return _is_number(v) and v > 0
+    if kind == "number or null":
+        return v is None or _is_number(v)
+    if kind == "count":
+        return _is_int(v) and v > 0
+    if kind == "integer":
+        return _is_int(v)
+    if kind == "pair":
+        return isinstance(v, list) and len(v) == 2 and all(_is_int(x) and x > 0 for x in v)
+    return isinstance(v, str)
+
+
+def _damaged(path, what: str) -> DatabaseError:
+    return DatabaseError(f"{path}: database metadata damaged: {what} (its zarr.json was edited or "
+                         "corrupted): rebuild it with `skyfix build-db ... --overwrite`")
+
+
+def _check_attrs(path: Path, attrs: dict) -> None:
+    """Raise a DatabaseError naming the first recorded attribute of the wrong type."""
+    for key, kind in _ATTR_KINDS:
+        v = attrs
+        for part in key.split("."):
+            if part not in v:
+                raise _damaged(path, f"{key} is missing")
+            v = v[part]
+        if not _attr_ok(kind, v):
+            raise _damaged(path, f"{key} must be {_KIND_WORDS[kind]}, got {v!r}")
+
+
+def _check_arrays(path: Path, g, attrs: dict) -> None:
+    """The arrays' own metadata must agree with the recorded grid (one chunk per block)."""
+    ny, nx = attrs["grid"]["shape"]
+    b = attrs["grid"]["block_shape"][0]
+    bins = attrs["azimuth_bins"]
+    for name in DATA_ARRAYS:
+        a = g[name]
+        want = (ny, nx, bins) if name == "elevation" else (ny, nx)
+        chunks = (b, b, bins) if name == "elevation" else (b, b)
+        if tuple(a.shape) != want or tuple(a.chunks) != chunks:
+            raise _damaged(path, f"array {name} has shape {tuple(a.shape)} in chunks {tuple(a.chunks)}, "
+                                 f"but grid.shape {[ny, nx]}, grid.block_shape and azimuth_bins {bins} "
+                                 f"say {want} in chunks {chunks}")
+
+
+def _chunk_keys(root: Path) -> set[str]:
+    """Every file under ``root`` as a '/'-separated path relative to it (one listing, no reads)."""
+    have = set()
+    for d, _, files in os.walk(root):
+        rel = os.path.relpath(d, root).replace(os.sep, "/")
+        pre = "" if rel == "." else rel + "/"
+        have.update(pre + f for f in files)
+    return have
+
+
+def _absent_data(path: Path, g, grid: Grid, done) -> dict:
+    """Built blocks (with a marker) whose chunk file of some array is gone: {(br, bc): [names]}.
+
+    zarr reads an absent chunk as the fill value without a word, so a deleted chunk file would
+    read as a block of "no terrain" skylines and NaN heights. One directory listing per array at
+    open time finds them (milliseconds for a 7 x 7 km database), so a read costs one set lookup.
+    """
+    blocks = sorted(set(done) & set(grid.blocks()))
+    absent: dict = {}
+    for name in DATA_ARRAYS:
+        a = g[name]
+        have = _chunk_keys(path / name)
+        enc = a.metadata.chunk_key_encoding
+        tail = (0,) * (a.ndim - 2)
+        for br, bc in blocks:
+            if enc.encode_chunk_key((br, bc) + tail) not in have:
+                absent.setdefault((br, bc), []).append(name)
+    # zarr does not write a chunk that is all fill value: legitimate if the marker's checksum says
+    # the block really was all fill (only conceivable for elevation: every ray without terrain).
+    for (br, bc), names in list(absent.items()):
+        try:
+            sha = json.loads((path / MARKER_DIR / _marker_name(br, bc)).read_text())["sha256"]
+        except (OSError, ValueError, KeyError, TypeError):
+            sha = {}
+        rs, cs = grid.block_slices(br, bc)
+        gone = []
+        for name in names:
+            a = g[name]
+            fill = np.full((rs.stop - rs.start, cs.stop - cs.start) + tuple(a.shape[2:]), a.fill_value,
+                           a.dtype)
+            if not isinstance(sha, dict) or sha.get(name) != _sha(fill):
+                gone.append(name)
+        if gone:
+            absent[(br, bc)] = gone
+        else:
+            del absent[(br, bc)]
+    return absent
+
+
+def _intact_blocks(path: Path, grid: Grid) -> set[tuple[int, int]]:
+    """Blocks with a marker and every chunk file: a resume redoes the others."""
+    import zarr
+
+    done = done_blocks(path)
+    try:
+        g = zarr.open_group(str(path), mode="r")
+        absent = _absent_data(path, g, grid, done)
+    except Exception:  # a store too broken to list: the build below will say so, or redo it all
+        return done
+    return done - set(absent)
+
+
+def _data_missing_message(path, absent: dict) -> str:
+    (br, bc), names = min(absent.items())
+    more = f" ({len(absent)} blocks in all)" if len(absent) > 1 else ""
+    return (f"{path}: block ({br}, {bc}) data missing (no chunk file for {', '.join(names)}){more}: "
+            f"run `skyfix verify {path}`, then rebuild (the same build-db command resumes and redoes "
+            "such blocks)")
 
 
 def done_blocks(path) -> set[tuple[int, int]]:
@@ -459,6 +670,9 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
         raise ParameterError(f"maximum distance must be > 0 m, got {max_distance_m}")
     if not (math.isfinite(camera_height_m) and camera_height_m >= 0):
         raise ParameterError(f"camera height must be >= 0 m, got {camera_height_m}")
+    check_build_size(grid, azimuth_bins)
+    if executor is None:
+        check_executor_options(workers, scheduler)
 
     dem = load_dem(dem_path)
     xs, ys = grid.x_coords, grid.y_coords
@@ -472,12 +686,24 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
     params = build_params(dem_sha256=dem.checksum, grid=grid, bounds=bounds,
                           camera_height_m=camera_height_m, azimuth_bins=azimuth_bins,
                           max_distance_m=max_distance_m, planet=planet)
-    resumed = _prepare_output(out, params, grid, overwrite)
+    action = _plan_output(out, params, grid, overwrite)  # refuses, deletes nothing
+    # The executor starts (the scheduler is reached) before anything is deleted: a bad --scheduler
+    # must not cost the database that --overwrite was about to replace.
+    with (nullcontext((executor, 2, False)) if executor is not None
+          else make_executor(workers, scheduler)) as (ex, slots, single):
+        return _build(out, action, dem_path, dem, grid, params, planet, ex, slots, single, progress)
+
+
+def _build(out: Path, action: str, dem_path, dem, grid: Grid, params: dict, planet: Planet,
+           ex: Executor, slots: int, single: bool, progress: bool) -> BuildResult:
+    """The part of :func:`build_database` that writes: every option checked, the executor running."""
+    resumed = _apply_plan(out, action)
+    azimuth_bins = params["azimuth_bins"]
     if not resumed:
         attrs = {
             "format": FORMAT, "format_version": FORMAT_VERSION, "software_version": __version__,
             "crs_wkt": dem.crs_wkt, "crs_name": dem.crs_name, "grid": grid.to_attr(),
-            "camera_height_m": float(camera_height_m), "planet": planet.to_attr(),
+            "camera_height_m": params["camera_height_m"], "planet": planet.to_attr(),
             "azimuth_bins": azimuth_bins, "max_distance_m": params["max_distance_m"],
             "elevation": {"scale_deg": SCALE_DEG, "missing": MISSING,
                           "max_quantisation_error_deg": SCALE_DEG / 2,
@@ -490,10 +716,11 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
         _create_store(out, grid, azimuth_bins, attrs)
 
     spec = _BuildSpec(str(Path(dem_path).resolve()), dem.checksum, str(out), grid,
-                      float(camera_height_m), azimuth_bins, params["max_distance_m"], planet)
+                      params["camera_height_m"], azimuth_bins, params["max_distance_m"], planet,
+                      single_thread=single)
     _DEM_CACHE.clear()
     _DEM_CACHE[(spec.dem_path, spec.dem_sha256)] = dem  # the in-process path reuses this load
-    done = done_blocks(out)
+    done = _intact_blocks(out, grid)
     todo = [b for b in grid.blocks() if b not in done]
     n_blocks = len(grid.blocks())
     if resumed:
@@ -504,51 +731,65 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
     t0 = time.perf_counter()
     positions = 0
     if todo:
-        if executor is not None:
-            positions = _run(executor, 2, spec, todo, n_blocks, len(done), progress)
-        else:
-            with make_executor(workers, scheduler) as (ex, slots, single):
-                spec = _BuildSpec(**{**spec.__dict__, "single_thread": single})
-                positions = _run(ex, slots, spec, todo, n_blocks, len(done), progress)
+        positions = _run(ex, slots, spec, todo, n_blocks, len(done), progress)
     dt = time.perf_counter() - t0
-    missing = set(grid.blocks()) - done_blocks(out)
+    missing = set(grid.blocks()) - _intact_blocks(out, grid)
     if missing:  # cannot happen unless a task lied; never report an incomplete store as built
-        raise DatabaseError(f"{len(missing)} blocks of {out} have no marker after the build: run it again")
+        raise DatabaseError(f"{len(missing)} blocks of {out} have no marker or no data after the build: "
+                            "run it again")
     return BuildResult(out, n_blocks, len(todo), len(done), positions, dt,
                        positions / dt if dt > 0 else float("nan"), dir_size(out))
 
 
-def _prepare_output(out: Path, params: dict, grid: Grid, overwrite: bool) -> bool:
-    """Decide what to do with an existing ``out``; return True to resume it."""
+def _plan_output(out: Path, params: dict, grid: Grid, overwrite: bool) -> str:
+    """What to do with ``out``, refusing what must not happen; changes nothing on disk.
+
+    Returns ``new`` (nothing there), ``rmdir`` (an empty folder), ``unlink`` (a file, with
+    --overwrite), ``replace`` (a skyfix database, with --overwrite) or ``resume``.
+    """
     if not out.exists():
-        return False
-    attrs = _read_attrs(out) if out.is_dir() else None
-    if attrs is None:
-        if out.is_dir() and any(out.iterdir()):
-            raise OutputExistsError(f"{out} exists and is not a skyfix database: choose another --out "
-                                    "(skyfix will not delete a directory it did not write)")
-        if out.is_dir():  # empty: nothing to lose
-            out.rmdir()
-            return False
+        return "new"
+    if not out.is_dir():
         if not overwrite:
             raise OutputExistsError(f"{out} already exists: pass --overwrite to replace it")
-        out.unlink()
-        return False
-    old = attrs.get("build", {})
-    complete = len(done_blocks(out)) == len(grid.blocks())
+        return "unlink"
+    state, attrs = _root_state(out)
+    if state != "ok":
+        if state == "damaged" and (out / META_DIR).is_dir():  # ours, with its zarr.json spoiled
+            if overwrite:
+                return "replace"
+            raise DatabaseError(f"{out} is a skyfix database whose metadata are damaged ({attrs}): "
+                                "pass --overwrite to rebuild it from scratch")
+        if any(out.iterdir()):
+            raise OutputExistsError(f"{out} exists and is not a skyfix database: choose another --out "
+                                    "(skyfix will not delete a directory it did not write)")
+        return "rmdir"  # empty: nothing to lose
     if overwrite:
-        log.warning("--overwrite: deleting the existing database %s", out)
-        shutil.rmtree(out)
-        return False
+        return "replace"
+    old = attrs.get("build", {})
     if old != params:
-        diffs = _differences(old, params)
+        diffs = _differences(old if isinstance(old, dict) else {}, params)
         raise DatabaseError(f"{out} was built with other parameters ({'; '.join(diffs)}): use the "
                             "original parameters to resume it, or --overwrite to start afresh")
-    if complete:
+    if len(_intact_blocks(out, grid)) == len(grid.blocks()):
         raise OutputExistsError(f"{out} is already a complete database built with these parameters: "
                                 "pass --overwrite to rebuild it")
-    _clean_partials(out)
-    return True
+    return "resume"
+
+
+def _apply_plan(out: Path, action: str) -> bool:
+    """Carry out :func:`_plan_output`'s decision; return True to resume ``out``."""
+    if action == "resume":
+        _clean_partials(out)
+        return True
+    if action == "replace":
+        log.warning("--overwrite: deleting the existing database %s", out)
+        shutil.rmtree(out)
+    elif action == "unlink":
+        out.unlink()
+    elif action == "rmdir":
+        out.rmdir()
+    return False
 
 
 def _run(ex: Executor, slots: int, spec: _BuildSpec, todo, n_blocks: int, n_done: int,
@@ -632,11 +873,13 @@ class SkylineDatabase:
     reads only the chunks holding the positions asked for.
     """
 
-    def __init__(self, path: Path, group, attrs: dict, done: set):
+    def __init__(self, path: Path, group, attrs: dict, done: set, absent: dict | None = None):
         self.path = path
         self._g = group
         self._attrs = attrs
         self._done = done
+        self._absent = absent or {}  # built blocks whose chunk files are gone (see _absent_data)
+        self._arrays: dict = {}
         gr = attrs["grid"]
         self.grid = Grid(float(gr["x0"]), float(gr["y0"]), float(gr["spacing_m"]), int(gr["shape"][0]),
                          int(gr["shape"][1]), int(gr["block_shape"][0]))
@@ -725,8 +968,14 @@ class SkylineDatabase:
         return len(self._done & set(self.grid.blocks()))
 
     @property
+    def blocks_data_missing(self) -> list[tuple[int, int]]:
+        """Built blocks (marker present) whose chunk files are gone: unreadable until rebuilt."""
+        return sorted(self._absent)
+
+    @property
     def is_complete(self) -> bool:
-        return self.blocks_done == self.n_blocks
+        """Every block built, and every built block's data there."""
+        return self.blocks_done == self.n_blocks and not self._absent
 
     # --- positions -------------------------------------------------------------------------------
     def index_of(self, x, y):
@@ -761,7 +1010,7 @@ class SkylineDatabase:
 
     def _gather(self, name: str, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         # Group the positions by block so each chunk is decoded once, one chunk in memory at a time.
-        arr = self._g[name]
+        arr = self._array(name)
         out = np.empty((row.size,) + tuple(arr.shape[2:]), arr.dtype)
         b = self.grid.block
         key = (row // b) * self.grid.n_blocks[1] + col // b
@@ -771,9 +1020,36 @@ class SkylineDatabase:
             idx = order[s:e]
             br, bc = int(row[idx[0]] // b), int(col[idx[0]] // b)
             rs, cs = self.grid.block_slices(br, bc)
-            chunk = np.asarray(arr[rs, cs])
+            chunk = self.read_raw(name, br, bc)
             out[idx] = chunk[row[idx] - rs.start, col[idx] - cs.start]
         return out
+
+    def _array(self, name: str):
+        a = self._arrays.get(name)
+        if a is None:  # opening reads the array's zarr.json: once, not once per block
+            a = self._arrays[name] = self._g[name]
+        return a
+
+    def _read_unchecked(self, name: str, br: int, bc: int) -> np.ndarray:
+        rs, cs = self.grid.block_slices(br, bc)
+        return np.asarray(self._array(name)[rs, cs])
+
+    def read_raw(self, name: str, br: int, bc: int) -> np.ndarray:
+        """Array ``name``'s chunk of block (br, bc) as stored, shaped (rows, cols[, bins]).
+
+        Raises :class:`~skyfix.errors.DatabaseError` naming the block if its chunk file is gone
+        (zarr would hand back fill values) or cannot be decoded.
+        """
+        if name in self._absent.get((br, bc), ()):
+            raise DatabaseError(_data_missing_message(self.path, {(br, bc): self._absent[(br, bc)]}))
+        try:
+            return self._read_unchecked(name, br, bc)
+        except Exception as e:  # a damaged chunk fails to decode (zstd checksum) in many ways
+            raise DatabaseError(
+                f"{self.path}: block ({br}, {bc}) data unreadable ({name} chunk: {type(e).__name__}: "
+                f"{e}): run `skyfix verify {self.path}`, then delete the damaged blocks' markers "
+                f"({MARKER_DIR}/{_marker_name(br, bc)}) and rerun the build-db command (it resumes)"
+            ) from None
 
     def profiles_at(self, x, y) -> np.ndarray:
         """float32 (n, bins) [deg] skylines at the nearest grid positions (NaN = no terrain)."""
@@ -790,12 +1066,11 @@ class SkylineDatabase:
         rs, cs = self.grid.block_slices(br, bc)
         rows, cols = rs.stop - rs.start, cs.stop - cs.start
         x, y = self.grid.block_xy(br, bc)
-        g = self._g
         return Block(rs.start, cs.start, rows, cols, x, y,
-                     np.asarray(g["elevation"][rs, cs]).reshape(rows * cols, -1),
-                     np.asarray(g["ground_z"][rs, cs]).ravel(),
-                     np.asarray(g["min_ray_m"][rs, cs]).ravel(),
-                     np.asarray(g["edge_bins"][rs, cs]).ravel(), self.scale_deg, self.missing)
+                     self.read_raw("elevation", br, bc).reshape(rows * cols, -1),
+                     self.read_raw("ground_z", br, bc).ravel(),
+                     self.read_raw("min_ray_m", br, bc).ravel(),
+                     self.read_raw("edge_bins", br, bc).ravel(), self.scale_deg, self.missing)
 
     def iter_blocks(self) -> Iterator[Block]:
         """Every built block in a fixed order (north to south, west to east), one in memory at a time."""
@@ -806,7 +1081,8 @@ class SkylineDatabase:
     def __repr__(self) -> str:
         ny, nx = self.shape
         return (f"SkylineDatabase({str(self.path)!r}, {nx} x {ny} positions at {self.spacing_m:g} m, "
-                f"{self.azimuth_bins} bins, {self.blocks_done}/{self.n_blocks} blocks)")
+                f"{self.azimuth_bins} bins, {self.blocks_done}/{self.n_blocks} blocks"
+                + (f", {len(self._absent)} without data)" if self._absent else ")"))
 
 
 def open_database(path, *, allow_incomplete: bool = False) -> SkylineDatabase:
@@ -820,30 +1096,47 @@ def open_database(path, *, allow_incomplete: bool = False) -> SkylineDatabase:
     path = Path(path)
     if not path.exists():
         raise DatabaseError(f"database {path} does not exist: build it with `skyfix build-db`")
-    attrs = _read_attrs(path) if path.is_dir() else None
-    if attrs is None:
+    state, attrs = _root_state(path) if path.is_dir() else ("none", None)
+    if state == "damaged":
+        raise DatabaseError(f"{path}: database metadata damaged: {attrs}: rebuild it with "
+                            "`skyfix build-db ... --overwrite`")
+    if state != "ok":
         raise DatabaseError(f"{path} is not a skyfix skyline database (no zarr.json with format "
                             f"{FORMAT!r}): give the folder `skyfix build-db` wrote")
-    if int(attrs.get("format_version", 0)) > FORMAT_VERSION:
-        raise DatabaseError(f"{path} has format version {attrs.get('format_version')}, newer than this "
+    version = attrs.get("format_version")
+    if not _is_int(version):
+        raise _damaged(path, f"format_version must be a whole number, got {version!r}")
+    if version > FORMAT_VERSION:
+        raise DatabaseError(f"{path} has format version {version}, newer than this "
                             f"skyfix ({__version__}) reads ({FORMAT_VERSION}): upgrade skyfix")
+    _check_attrs(path, attrs)
     try:
         g = zarr.open_group(str(path), mode="r")
-        for name in ("elevation", "ground_z", "min_ray_m", "edge_bins"):
+        for name in DATA_ARRAYS:
             g[name]
     except Exception as e:  # zarr raises several unrelated types for a broken store
         raise DatabaseError(f"{path} is a damaged skyline database ({type(e).__name__}: {e})") from None
-    db = SkylineDatabase(path, g, attrs, done_blocks(path))
-    if not allow_incomplete and not db.is_complete:
-        raise DatabaseError(f"{path} is incomplete ({db.blocks_done} of {db.n_blocks} blocks built): run "
-                            "the same `skyfix build-db` command again to finish it")
+    _check_arrays(path, g, attrs)
+    done = done_blocks(path)
+    db = SkylineDatabase(path, g, attrs, done)
+    db._absent = _absent_data(path, g, db.grid, done)
+    if not allow_incomplete:
+        if db.blocks_data_missing:
+            raise DatabaseError(_data_missing_message(path, db._absent))
+        if not db.is_complete:
+            raise DatabaseError(f"{path} is incomplete ({db.blocks_done} of {db.n_blocks} blocks built): "
+                                "run the same `skyfix build-db` command again to finish it")
     return db
 
 
 # --- checks ----------------------------------------------------------------------------------------
 @dataclass
 class VerifyReport:
-    """Outcome of :func:`verify_database`; ``ok`` when nothing is wrong."""
+    """Outcome of :func:`verify_database`.
+
+    ``ok`` when nothing was found wrong; ``samples_skipped`` says why the re-render asked for did
+    not run (then ``ok`` covers the checksums only).
+    """
 
     path: Path
     n_blocks: int
@@ -853,6 +1146,8 @@ class VerifyReport:
     sample_max_error_deg: float = float("nan")
     sample_failures: list = field(default_factory=list)
     notes: list = field(default_factory=list)
+    samples_requested: int = 0
+    samples_skipped: str = ""
 
     @property
     def ok(self) -> bool:
@@ -863,14 +1158,22 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
     """Check every block against its marker's checksums, then re-render ``samples`` positions.
 
     dem : DEM path or :class:`~skyfix.dem.Dem` for the re-render (default: the path recorded at
-        build time; skipped with a note if it is not there)
-    samples : positions re-rendered and compared within half the quantisation step (+ 1e-4 deg)
+        build time; if it is not there the re-render is skipped and ``samples_skipped`` says so)
+    samples : distinct positions of intact blocks re-rendered and compared within half the
+        quantisation step (+ 1e-4 deg); all of them if there are fewer; 0 = checksums only
     """
     from .dem import Dem, load_dem
     from .horizon import render_horizons
 
+    try:
+        count_ok = not isinstance(samples, bool) and int(samples) == samples and samples >= 0
+    except (TypeError, ValueError):
+        count_ok = False
+    if not count_ok:
+        raise ParameterError(f"samples must be a whole number >= 0 (0: checksums only), got {samples!r}")
+    samples = int(samples)
     db = open_database(path, allow_incomplete=True)
-    rep = VerifyReport(Path(path), db.n_blocks)
+    rep = VerifyReport(Path(path), db.n_blocks, samples_requested=samples)
     markers = Path(path) / MARKER_DIR
     good = []
     for br, bc in db.grid.blocks():
@@ -878,13 +1181,13 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
         if not mp.exists():
             rep.missing.append((br, bc))
             continue
+        gone = db._absent.get((br, bc))
+        if gone:
+            rep.corrupt.append(((br, bc), f"data missing: no chunk file for {', '.join(gone)}"))
+            continue
         try:
             marker = json.loads(mp.read_text())
-            blk = db.read_block(br, bc)
-            got = {"elevation": blk.elevation.reshape(blk.rows, blk.cols, -1),
-                   "ground_z": blk.ground_z_m.reshape(blk.rows, blk.cols),
-                   "min_ray_m": blk.min_ray_m.reshape(blk.rows, blk.cols),
-                   "edge_bins": blk.edge_bins.reshape(blk.rows, blk.cols)}
+            got = {name: db._read_unchecked(name, br, bc) for name in DATA_ARRAYS}
             bad = [k for k, v in got.items() if _sha(v) != marker["sha256"].get(k)]
         except Exception as e:  # a damaged chunk fails to decode (zstd checksum) in many ways
             rep.corrupt.append(((br, bc), f"unreadable: {type(e).__name__}: {e}"))
@@ -893,12 +1196,17 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
             rep.corrupt.append(((br, bc), f"checksum mismatch in {', '.join(bad)}"))
         else:
             good.append((br, bc))
-    if samples <= 0 or not good:
+    if samples == 0:
+        return rep
+    if not good:
+        rep.samples_skipped = "no intact block to sample from"
         return rep
     if dem is None:
         src = db.attrs["dem"].get("source", "")
-        if not src or not Path(src).exists():
-            rep.notes.append(f"DEM {src or '(unknown)'} not found: pass --dem to re-render samples")
+        if not src or not Path(src).is_file():
+            rep.samples_skipped = (f"the DEM recorded at build time, {src or '(none)'}, is not there: "
+                                   "pass --dem DEM to re-render samples (or --samples 0 to check the "
+                                   "checksums only)")
             return rep
         dem = src
     if not isinstance(dem, Dem):
@@ -907,14 +1215,21 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
         rep.sample_failures.append(f"DEM checksum {dem.checksum[:12]}... differs from the build's "
                                    f"{db.dem_sha256[:12]}...: not the DEM this database was built from")
         return rep
+    # Distinct positions drawn uniformly over the intact blocks (flat index -> block -> row, col).
+    r0, c0, ncol, size = (np.array(v, np.int64) for v in zip(*(
+        (rs.start, cs.start, cs.stop - cs.start, (rs.stop - rs.start) * (cs.stop - cs.start))
+        for rs, cs in (db.grid.block_slices(br, bc) for br, bc in good))))
+    total = int(size.sum())
+    if samples > total:
+        rep.notes.append(f"{samples} samples asked for, but the intact blocks hold {total} positions: "
+                         f"re-rendered all {total}")
     rng = np.random.default_rng(seed)
-    picks = [good[i] for i in rng.integers(0, len(good), samples)]
-    rows, cols = [], []
-    for br, bc in picks:
-        rs, cs = db.grid.block_slices(br, bc)
-        rows.append(int(rng.integers(rs.start, rs.stop)))
-        cols.append(int(rng.integers(cs.start, cs.stop)))
-    x, y = db.xy_of(np.array(rows), np.array(cols))
+    flat = np.sort(rng.choice(total, size=min(samples, total), replace=False))
+    ends = np.cumsum(size)
+    bi = np.searchsorted(ends, flat, side="right")
+    within = flat - (ends[bi] - size[bi])
+    rows, cols = r0[bi] + within // ncol[bi], c0[bi] + within % ncol[bi]
+    x, y = db.xy_of(rows, cols)
     hb = render_horizons(dem, x, y, camera_height_m=db.camera_height_m, planet=db.planet,
                          azimuth_bins=db.azimuth_bins, max_distance_m=db.max_distance_m,
                          skip_tol_deg=float(db.attrs["build"].get("skip_tol_deg", SKIP_TOL_DEG)))
@@ -934,7 +1249,10 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
 
 
 def describe(path) -> dict:
-    """Metadata, completeness and size on disk of a database (complete or not), for ``skyfix info``."""
+    """Metadata, completeness and size on disk of a database (complete or not), for ``skyfix info``.
+
+    ``damage`` is the error message for built blocks whose data files are gone (None if none).
+    """
     db = open_database(path, allow_incomplete=True)
     ny, nx = db.shape
     a = db.attrs
@@ -953,7 +1271,10 @@ def describe(path) -> dict:
         "planet": a["planet"], "max_distance_m": db.max_distance_m,
         "scale_deg": db.scale_deg, "dem": a["dem"],
         "blocks_done": db.blocks_done, "n_blocks": db.n_blocks, "complete": db.is_complete,
+        "blocks_data_missing": [list(b) for b in db.blocks_data_missing],
+        "damage": _data_missing_message(db.path, db._absent) if db._absent else None,
         "size_bytes": size,
         "positions_built": built,
-        "bytes_per_skyline": size / max(1, built),  # of the skylines built so far
+        # of the skylines built so far (none yet: no meaningful figure)
+        "bytes_per_skyline": size / built if built else None,
     }

@@ -466,23 +466,20 @@ def _prefetch(blocks, depth: int = 2):
 def _elevation_blocks(db):
     """Blocks with only what the matcher needs.
 
-    For a complete ``skyfix.database`` store, the elevation chunks alone, read through the
-    documented layout (zarr array ``elevation`` in the store's folder): ``iter_blocks`` also decodes
-    ground height, ray length and edge bins, ~35 % of the read time for data the search does not
-    use. Other stores (and incomplete ones): their ``iter_blocks``.
+    For a complete ``skyfix.database`` store, the elevation chunks alone (``read_raw``):
+    ``iter_blocks`` also decodes ground height, ray length and edge bins, ~35 % of the read time for
+    data the search does not use. Other stores (and incomplete ones): their ``iter_blocks``. Either
+    way a block whose chunk file is gone or undecodable raises a DatabaseError naming it (zarr would
+    quietly hand back fill values, and the search a confident wrong fix).
     """
     grid = getattr(db, "grid", None)
-    path = getattr(db, "path", None)
-    if grid is None or path is None or not getattr(db, "is_complete", False):
+    if grid is None or not hasattr(db, "read_raw") or not getattr(db, "is_complete", False):
         yield from db.iter_blocks()
         return
-    import zarr
-
-    arr = zarr.open_array(str(path / "elevation"), mode="r")
     for br, bc in grid.blocks():
         rs, cs = grid.block_slices(br, bc)
         x, y = grid.block_xy(br, bc)
-        raw = np.asarray(arr[rs, cs]).reshape((rs.stop - rs.start) * (cs.stop - cs.start), -1)
+        raw = db.read_raw("elevation", br, bc).reshape((rs.stop - rs.start) * (cs.stop - cs.start), -1)
         yield Block(rs.start, cs.start, rs.stop - rs.start, cs.stop - cs.start, x, y, raw)
 
 

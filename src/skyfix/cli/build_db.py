@@ -21,13 +21,17 @@ import click
               help="Use an existing Dask cluster (tcp://HOST:PORT) sharing this file system.")
 @click.option("--block-positions", type=int, default=64, show_default=True,
               help="Positions per block side: one task and one zarr chunk per block.")
-@click.option("--overwrite", is_flag=True, help="Delete an existing database and start afresh.")
+@click.option("--overwrite", is_flag=True,
+              help="Delete an existing database and start afresh (only once every option is checked "
+                   "and the workers are up).")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_distance_m, planet,
              workers, scheduler, block_positions, overwrite, no_progress):
     """Render the skyline at every grid position of BOUNDS from DEM into a zarr store.
 
-    Killed at any point, the same command resumes where it stopped; --overwrite starts afresh.
+    Killed at any point, the same command resumes where it stopped (it also redoes built blocks
+    whose data files have gone); --overwrite starts afresh. A grid of more than 1e9 positions or
+    ~500 GB is refused as a likely typo.
     """
     from ..database import build_database
 
