@@ -8,6 +8,7 @@ each dev image resampled to 4 MP, timed against the target of 1 s per 4-MP image
 
     PYTHONPATH=src python benchmarks/bench_detect.py [--methods dp,bayes] [--data DIR]
         [--only NAME,...] [--set KEY=VALUE ...] [--cv [--cv-sim SIMS]] [--sim DIR]
+        [--degrade jpeg:Q|blur:S|denoise]
 
 ``--cv`` adds a leave-one-image-out table for ``dp``: for each image, the sky classifier is
 retrained (same recipe as ``scripts/train_sky_model.py``) on the other labelled images and the
@@ -164,6 +165,28 @@ def loo_models(folder, names, sim_dirs=(), sim_max_frames=10):
     return models
 
 
+def degrade(img, how):
+    """``img`` (RGB or grey uint8) as a user's pipeline may deliver it: ``jpeg:Q`` (JPEG at
+    quality Q, the mosaic's black no-data border kept black, which JPEG smears), ``blur:S``
+    (Gaussian blur of S px) or ``denoise`` (a bilateral filter, as camera firmware smooths)."""
+    import cv2
+
+    kind, _, arg = how.partition(":")
+    if kind == "jpeg":
+        black = (img == 0).all(axis=-1) if img.ndim == 3 else img == 0
+        ok, buf = cv2.imencode(".jpg", img[..., ::-1] if img.ndim == 3 else img,
+                               [cv2.IMWRITE_JPEG_QUALITY, int(arg or 75)])
+        out = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+        out = out[..., ::-1].copy() if out.ndim == 3 else out
+        out[black] = 0
+        return out
+    if kind == "blur":
+        return cv2.GaussianBlur(img, (0, 0), float(arg or 1.0))
+    if kind == "denoise":
+        return cv2.bilateralFilter(img, 7, 20, 5)
+    raise SystemExit(f"--degrade {how}: use jpeg:Q, blur:S or denoise")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--methods", default="dp,bayes")
@@ -177,7 +200,11 @@ def main(argv=None):
     ap.add_argument("--cv-sim", default="",
                     help="training sims for --cv (the folder scripts/make_sky_sims.sh wrote)")
     ap.add_argument("--no-all", action="store_true", help="skip the shipped-model tables")
+    ap.add_argument("--degrade", default="", metavar="jpeg:Q|blur:S|denoise",
+                    help="degrade every image first (robustness to compression and smoothing)")
     args = ap.parse_args(argv)
+    if args.degrade:
+        degrade(np.zeros((8, 8, 3), np.uint8), args.degrade)  # refuse a bad spec before any work
     options = {}
     for kv in args.set:
         k, _, v = kv.partition("=")
@@ -191,6 +218,8 @@ def main(argv=None):
         raise SystemExit(f"no dev set at {folder}")
     only = set(filter(None, args.only.split(",")))
     pairs = [p for p in dev_pairs(folder) if not only or p[0] in only]
+    if args.degrade:
+        pairs = [(n, degrade(im, args.degrade), t) for n, im, t in pairs]
     # warm up numba's cache so the first image is not charged for compilation
     detect_skyline(np.full((40, 40), 128, np.uint8))
     if not args.no_all:
@@ -203,8 +232,10 @@ def main(argv=None):
         run_set(pairs, "dp", models=models, title="(leave-one-image-out sky model)", **options)
     if args.sim:
         for set_dir in sorted(p for p in Path(args.sim).iterdir() if p.is_dir()):
-            run_set(list(sim_pairs(set_dir)), "dp", per_image=False, title=f"(simulated {set_dir.name})",
-                    **options)
+            sims = list(sim_pairs(set_dir))
+            if args.degrade:
+                sims = [(n, degrade(im, args.degrade), t) for n, im, t in sims]
+            run_set(sims, "dp", per_image=False, title=f"(simulated {set_dir.name})", **options)
     else:
         print("simulated sets: pass --sim DIR (DIR/REF, DIR/CLUT, ... written by "
               "skyfix.simulate.simulate_set)")
