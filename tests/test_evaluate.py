@@ -51,3 +51,28 @@ def test_evaluate_detect_scores_a_real_labelled_mosaic(tmp_path):
     assert total["mean_abs_err_px"] < 1.0 and total["within_3px"] > 0.95 and total["false_rate"] < 0.01
     assert (tmp_path / "scores.csv").read_text().startswith("image,")
     assert run("evaluate-detect", "--images", tmp_path / "nope").exit_code == 2
+
+
+def test_evaluate_detect_refuses_a_truth_of_another_size_and_counts_orphans(tmp_path, caplog):
+    import json
+
+    import cv2
+
+    img = np.full((40, 30, 3), 90, np.uint8)
+    img[:15] = 200  # a flat skyline at row 15
+    cv2.imwrite(str(tmp_path / "a.png"), img)
+    truth = {"image": "a.png", "width": 30, "height": 40, "rows": [15.0] * 30}
+    (tmp_path / "orphan.skyline.json").write_text(json.dumps(truth))  # no orphan.png
+    (tmp_path / "a.skyline.json").write_text(json.dumps({**truth, "height": 50}))
+    r = run("evaluate-detect", "--images", tmp_path)
+    assert r.exit_code == 2 and "30 x 50 px image" in r.output and "30 x 40 px" in r.output
+    (tmp_path / "a.skyline.json").write_text(json.dumps(truth))
+    from skyfix.evaluate import evaluate_detection
+
+    with caplog.at_level("WARNING", logger="skyfix"):
+        rows = evaluate_detection(tmp_path)
+    assert [r["image"] for r in rows] == ["a", "all"]
+    assert "1 truth file(s) without a NAME.png" in caplog.text and "orphan.skyline.json" in caplog.text
+    (tmp_path / "out").mkdir()
+    r = run("evaluate-detect", "--images", tmp_path, "-o", tmp_path / "out")
+    assert r.exit_code == 2 and ("folder" in r.output or "directory" in r.output)

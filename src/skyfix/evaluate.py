@@ -325,18 +325,29 @@ def evaluate_detection(images_dir, out=None, *, method: str = "dp") -> list[dict
         raise ParameterError(f"{images_dir} is not a folder of images with *.skyline.json truth")
     truths = sorted(images_dir.glob("*.skyline.json"))
     rows = []
+    no_image = []
     for tpath in truths:
         name = tpath.name[: -len(".skyline.json")]
         img_path = images_dir / f"{name}.png"
         if not img_path.exists():
+            no_image.append(tpath.name)
             continue
         img = read_rgb(img_path)
+        truth = read_skyline_json(tpath)
+        if (truth.width, truth.height) != (img.shape[1], img.shape[0]):
+            # scoring a truth drawn on another image would be silently meaningless
+            raise ParameterError(
+                f"{tpath.name} is for a {truth.width} x {truth.height} px image, {img_path.name} is "
+                f"{img.shape[1]} x {img.shape[0]} px: give the truth drawn on this image")
         t0 = time.perf_counter()
         pred = detect_skyline(img, method=method, name=img_path.name)
         dt = time.perf_counter() - t0
-        sc = score_skyline(pred, read_skyline_json(tpath))
+        sc = score_skyline(pred, truth)
         sc = {"image": name, **sc, "ms_per_mpx": 1000 * dt / (img.shape[0] * img.shape[1] / 1e6)}
         rows.append(sc)
+    if no_image:
+        log.warning("%d truth file(s) without a NAME.png beside them, not scored: %s",
+                    len(no_image), ", ".join(no_image[:5]) + (" ..." if len(no_image) > 5 else ""))
     if not rows:
         raise ParameterError(f"no NAME.png with NAME.skyline.json in {images_dir}")
     total = {"image": "all", **combine_scores([{k: v for k, v in r.items() if k != "image"} for r in rows])}

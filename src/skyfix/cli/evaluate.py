@@ -59,12 +59,11 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
 def evaluate_detect(images_dir, method, output, overwrite):
     """Score skyline detection on labelled images: mean row error, share within 3 / 10 px,
     false- and missed-skyline rates, milliseconds per megapixel."""
-    from .._io import atomic_path, check_can_write
+    from .._io import atomic_path, check_outputs
     from ..evaluate import evaluate_detection
     from ..report import format_table
 
-    if output:
-        check_can_write(output, overwrite)
+    check_outputs(overwrite, ("--output", output, None))
     rows = evaluate_detection(images_dir, method=method)
     click.echo(format_table(rows))
     if output:
