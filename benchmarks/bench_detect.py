@@ -8,7 +8,7 @@ each dev image resampled to 4 MP, timed against the target of 1 s per 4-MP image
 
     PYTHONPATH=src python benchmarks/bench_detect.py [--methods dp,bayes] [--data DIR]
         [--only NAME,...] [--set KEY=VALUE ...] [--cv [--cv-sim SIMS]] [--sim DIR]
-        [--degrade jpeg:Q|blur:S|denoise]
+        [--degrade jpeg:Q|blur:S|denoise|resample:F]
 
 ``--cv`` adds a leave-one-image-out table for ``dp``: for each image, the sky classifier is
 retrained (same recipe as ``scripts/train_sky_model.py``) on the other labelled images and the
@@ -168,7 +168,8 @@ def loo_models(folder, names, sim_dirs=(), sim_max_frames=10):
 def degrade(img, how):
     """``img`` (RGB or grey uint8) as a user's pipeline may deliver it: ``jpeg:Q`` (JPEG at
     quality Q, the mosaic's black no-data border kept black, which JPEG smears), ``blur:S``
-    (Gaussian blur of S px) or ``denoise`` (a bilateral filter, as camera firmware smooths)."""
+    (Gaussian blur of S px), ``denoise`` (a bilateral filter, as camera firmware smooths) or
+    ``resample:F`` (down by F with area averaging, back up bilinearly)."""
     import cv2
 
     kind, _, arg = how.partition(":")
@@ -184,7 +185,13 @@ def degrade(img, how):
         return cv2.GaussianBlur(img, (0, 0), float(arg or 1.0))
     if kind == "denoise":
         return cv2.bilateralFilter(img, 7, 20, 5)
-    raise SystemExit(f"--degrade {how}: use jpeg:Q, blur:S or denoise")
+    if kind == "resample":
+        # down by F and back: a mosaic's sharp no-data border becomes a few pixels of grey ramp
+        h, w = img.shape[:2]
+        f = float(arg or 2.0)
+        small = cv2.resize(img, (max(2, round(w / f)), max(8, round(h / f))), interpolation=cv2.INTER_AREA)
+        return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+    raise SystemExit(f"--degrade {how}: use jpeg:Q, blur:S, denoise or resample:F")
 
 
 def main(argv=None):
@@ -200,7 +207,7 @@ def main(argv=None):
     ap.add_argument("--cv-sim", default="",
                     help="training sims for --cv (the folder scripts/make_sky_sims.sh wrote)")
     ap.add_argument("--no-all", action="store_true", help="skip the shipped-model tables")
-    ap.add_argument("--degrade", default="", metavar="jpeg:Q|blur:S|denoise",
+    ap.add_argument("--degrade", default="", metavar="jpeg:Q|blur:S|denoise|resample:F",
                     help="degrade every image first (robustness to compression and smoothing)")
     args = ap.parse_args(argv)
     if args.degrade:
