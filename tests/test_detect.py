@@ -496,6 +496,24 @@ def test_wide_camera_sky_survives_jpeg(tmp_path):
     assert score_skyline(detect_skyline(img, sure_sky_q=0), truth)["missed_rate"] > 0.5
 
 
+def test_bayes_on_a_wide_camera_needs_the_sure_sky_threshold(tmp_path):
+    """bayes's prior reads a wide (90 deg) sky's steep gradient as texture and calls no column a
+    skyline; with the sure sky's texture as its threshold (opt-in) it finds the skyline."""
+    from skyfix.dem import fractal_dem
+    from skyfix.formats import Truth
+    from skyfix.profile import read_rgb
+    from skyfix.simulate import simulate_acquisition
+
+    out = simulate_acquisition(fractal_dem(400, 30.0, seed=2), Truth(506640.8, 4192912.7, 14.75),
+                               tmp_path / "a", camera="wide", frames=1, seed=0)
+    png = sorted(out.glob("frame_*.png"))[0]
+    truth = read_skyline_json(png.with_name(png.stem + ".skyline.json"))
+    img = read_rgb(png)
+    s = score_skyline(detect_skyline(img, method="bayes", sure_sky_q=90), truth)
+    assert s["within_3px"] >= 0.95 and s["missed_rate"] <= 0.05 and s["false_rate"] == 0
+    assert score_skyline(detect_skyline(img, method="bayes"), truth)["missed_rate"] > 0.5
+
+
 def test_training_recipe_learns_synthetic_sky():
     # train on synthetic images only, then classify a held-out one (no dev data needed)
     from skyfix.skymodel import fit_sky_model, training_pixels
