@@ -8,7 +8,7 @@ each dev image resampled to 4 MP, timed against the target of 1 s per 4-MP image
 
     PYTHONPATH=src python benchmarks/bench_detect.py [--methods dp,bayes] [--data DIR]
         [--only NAME,...] [--set KEY=VALUE ...] [--cv [--cv-sim SIMS]] [--sim DIR]
-        [--degrade jpeg:Q|blur:S|denoise|resample:F]
+        [--degrade grey|jpeg:Q|blur:S|denoise|resample:F]
 
 ``--cv`` adds a leave-one-image-out table for ``dp``: for each image, the sky classifier is
 retrained (same recipe as ``scripts/train_sky_model.py``) on the other labelled images and the
@@ -142,17 +142,19 @@ def sim_pairs(set_dir):
             yield f"{png.parent.name}/{png.stem}", _read_rgb(png), read_skyline_json(truth)
 
 
-def loo_models(folder, names, sim_dirs=(), sim_max_frames=10):
+def loo_models(folder, names, sim_dirs=(), sim_max_frames=10, grey=False):
     """{name: sky model trained on every labelled image of ``folder`` except ``name``}, by the
     recipe of ``scripts/train_sky_model.py``: each image and its sky-dominant crop, plus the
-    simulated frames of ``sim_dirs`` (never held out: they are not dev images)."""
+    simulated frames of ``sim_dirs`` (never held out: they are not dev images); ``grey``: on
+    grey copies (its ``--grey``)."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-    from train_sky_model import read_labelled, simulated_frames, training_views
+    from train_sky_model import as_grey, read_labelled, simulated_frames, training_views
 
     from skyfix.skymodel import fit_sky_model, training_pixels
 
     def views(img, sky):
-        return [training_pixels(im, sk) for _, im, sk in training_views(img, sky)]
+        return [training_pixels(as_grey(im) if grey else im, sk)
+                for _, im, sk in training_views(img, sky)]
 
     parts = {name: views(img, sky) for name, img, sky in read_labelled(folder)}
     shared = [v for _, img, sky in simulated_frames(list(sim_dirs), sim_max_frames)
@@ -166,13 +168,20 @@ def loo_models(folder, names, sim_dirs=(), sim_max_frames=10):
 
 
 def degrade(img, how):
-    """``img`` (RGB or grey uint8) as a user's pipeline may deliver it: ``jpeg:Q`` (JPEG at
+    """``img`` (RGB or grey uint8) as a user's pipeline may deliver it: ``grey`` (a camera without
+    colour), ``jpeg:Q`` (JPEG at
     quality Q, the mosaic's black no-data border kept black, which JPEG smears), ``blur:S``
     (Gaussian blur of S px), ``denoise`` (a bilateral filter, as camera firmware smooths) or
     ``resample:F`` (down by F with area averaging, back up bilinearly)."""
     import cv2
 
+    if "," in how:  # a chain, applied left to right
+        for step in how.split(","):
+            img = degrade(img, step)
+        return img
     kind, _, arg = how.partition(":")
+    if kind == "grey":
+        return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
     if kind == "jpeg":
         black = (img == 0).all(axis=-1) if img.ndim == 3 else img == 0
         ok, buf = cv2.imencode(".jpg", img[..., ::-1] if img.ndim == 3 else img,
@@ -191,7 +200,7 @@ def degrade(img, how):
         f = float(arg or 2.0)
         small = cv2.resize(img, (max(2, round(w / f)), max(8, round(h / f))), interpolation=cv2.INTER_AREA)
         return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
-    raise SystemExit(f"--degrade {how}: use jpeg:Q, blur:S, denoise or resample:F")
+    raise SystemExit(f"--degrade {how}: use grey, jpeg:Q, blur:S, denoise or resample:F (or a chain: grey,jpeg:70)")
 
 
 def main(argv=None):
@@ -207,7 +216,7 @@ def main(argv=None):
     ap.add_argument("--cv-sim", default="",
                     help="training sims for --cv (the folder scripts/make_sky_sims.sh wrote)")
     ap.add_argument("--no-all", action="store_true", help="skip the shipped-model tables")
-    ap.add_argument("--degrade", default="", metavar="jpeg:Q|blur:S|denoise|resample:F",
+    ap.add_argument("--degrade", default="", metavar="grey|jpeg:Q|blur:S|denoise|resample:F",
                     help="degrade every image first (robustness to compression and smoothing)")
     args = ap.parse_args(argv)
     if args.degrade:
@@ -235,7 +244,8 @@ def main(argv=None):
             time_at_4mp(pairs, m, **(options if m == "dp" else {}))
     if args.cv:
         sim_dirs = sorted(p for p in Path(args.cv_sim).iterdir() if p.is_dir()) if args.cv_sim else []
-        models = loo_models(folder, [p[0] for p in pairs], sim_dirs)
+        models = loo_models(folder, [p[0] for p in pairs], sim_dirs,
+                            grey="grey" in args.degrade.split(","))
         run_set(pairs, "dp", models=models, title="(leave-one-image-out sky model)", **options)
     if args.sim:
         for set_dir in sorted(p for p in Path(args.sim).iterdir() if p.is_dir()):

@@ -6,7 +6,7 @@ Reads every labelled mosaic of the dev set (``NAME.png`` + ``NAME_label.png``, s
 
     PYTHONPATH=src python scripts/train_sky_model.py \\
         --data ../shared/data/marsscapes-dev --out src/skyfix/models/sky_hgb.npz [--overwrite] \\
-        [--sim FOLDER ...]
+        [--sim FOLDER ...] [--grey]
 
 ``--sim`` adds simulated acquisitions (``skyfix simulate-set`` output), labelled exactly from the
 simulator's visible skylines, so that the classifier also knows skies the real dev set lacks
@@ -18,6 +18,12 @@ frames rendered now differ in their shaded ground, so retraining gives a slightl
 
 The held-out (leave-one-image-out) accuracy of this recipe is printed by
 ``benchmarks/bench_detect.py --cv``.
+
+``--grey`` trains the model for images without colour on grey copies of the same images (the
+chroma features are then 0, as they are for a grey input). The shipped grey model was trained by
+``scripts/make_sky_sims.sh SIMS && python scripts/train_sky_model.py --grey --sim SIMS/*
+--sim-max-frames 10`` (sims rendered by the simulator as of this model); its held-out accuracy:
+``benchmarks/bench_detect.py --methods dp --no-all --cv --cv-sim SIMS --degrade grey``.
 """
 
 from __future__ import annotations
@@ -111,6 +117,13 @@ def simulated_frames(folders, max_frames):
         yield from read_simulated(folder, share)
 
 
+def as_grey(img):
+    """An RGB training image as the grey image a camera without colour would deliver."""
+    import cv2
+
+    return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
+
+
 def training_views(img, sky, sky_crops=True):
     """The (tag, image, sky mask) views one labelled image contributes: itself and, with
     ``sky_crops``, its :func:`sky_dominant_crop`."""
@@ -136,7 +149,12 @@ def main(argv=None):
                     help="at most this many simulated frames in all")
     ap.add_argument("--no-sky-crops", dest="sky_crops", action="store_false",
                     help="do not add a sky-dominant crop of each image (see sky_dominant_crop)")
+    ap.add_argument("--grey", action="store_true",
+                    help="train on grey copies of every image: the model for images without "
+                         "colour (default --out src/skyfix/models/sky_hgb_grey.npz)")
     args = ap.parse_args(argv)
+    if args.grey and args.out == ap.get_default("out"):
+        args.out = str(ROOT / "src" / "skyfix" / "models" / "sky_hgb_grey.npz")
     out = Path(args.out)
     if out.exists() and not args.overwrite:
         raise SystemExit(f"{out} exists: pass --overwrite to replace it")
@@ -147,7 +165,7 @@ def main(argv=None):
     for name, img, sky in itertools.chain(read_labelled(args.data),
                                           simulated_frames(args.sim, args.sim_max_frames)):
         for tag, im, sk in training_views(img, sky, args.sky_crops):
-            X, y = training_pixels(im, sk)
+            X, y = training_pixels(as_grey(im) if args.grey else im, sk)
             parts.append((X, y))
             print(f"{name}{tag}: {len(y)} pixels, {100 * y.mean():.1f} % sky", file=sys.stderr)
     if not parts:

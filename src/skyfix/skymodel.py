@@ -37,6 +37,8 @@ FEATURE_NAMES = (
 N_FEATURES = len(FEATURE_NAMES)
 
 DEFAULT_MODEL = Path(__file__).resolve().parent / "models" / "sky_hgb.npz"
+#: the same recipe on grey copies of the training images, for images without colour
+DEFAULT_GREY_MODEL = Path(__file__).resolve().parent / "models" / "sky_hgb_grey.npz"
 
 SKY_RGB = (34, 56, 19)  # MarsScapes label colour of sky
 
@@ -230,9 +232,11 @@ def from_sklearn(clf) -> SkyModel:
                     np.array(roots, np.int64), base, tuple(FEATURE_NAMES))
 
 
-def load_sky_model(path=None) -> SkyModel:
-    """Load a model written by :meth:`SkyModel.save` (default: the shipped one)."""
-    return _load_cached(str(Path(path) if path is not None else DEFAULT_MODEL))
+def load_sky_model(path=None, *, grey: bool = False) -> SkyModel:
+    """Load a model written by :meth:`SkyModel.save` (default: the shipped one, for colour
+    images, or with ``grey`` the one trained on grey copies)."""
+    default = DEFAULT_GREY_MODEL if grey else DEFAULT_MODEL
+    return _load_cached(str(Path(path) if path is not None else default))
 
 
 @lru_cache(maxsize=4)
