@@ -316,3 +316,19 @@ def test_info_of_a_store_with_nothing_built(dem_path, clean_db, tmp_path):
     assert res.exit_code == 0 and "0 of 9 blocks (INCOMPLETE" in res.output
     assert "no skyline built yet" in res.output
     assert describe(db_path)["bytes_per_skyline"] is None
+
+
+def test_build_db_out_through_a_file_is_named_before_any_work(tmp_path):
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+
+    plain = tmp_path / "plain.json"
+    plain.write_text("{}")
+    dem = tmp_path / "missing.tif"  # never read: the output is refused first
+    for out in (plain / "db.zarr", plain):
+        r = CliRunner().invoke(cli, ["build-db", str(dem), "-o", str(out), "--bounds", "0", "0", "10", "10",
+                                     "--spacing-m", "5"])
+        assert r.exit_code == 2, r.output
+        assert f"{plain} is a file, not a folder" in r.output and "creating" not in r.output
+    assert plain.read_text() == "{}"

@@ -52,6 +52,16 @@ def _nearest_existing(path: Path) -> Path:
     return p
 
 
+def check_folder_output(path) -> Path:
+    """Refuse, before any work, a folder output (created with its parents) whose path runs
+    through a file: the failure would come late and name a temporary folder."""
+    path = Path(path)
+    anc = _nearest_existing(path)
+    if os.path.lexists(anc) and not anc.is_dir():
+        raise cannot_write(path, f"{anc} is a file, not a folder")
+    return path
+
+
 def _missing_folder_reason(path: Path) -> str | None:
     """Why the folder that would hold ``path`` is unusable, or None when it is a folder."""
     parent = path.parent

@@ -33,8 +33,10 @@ def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_dis
     whose data files have gone); --overwrite starts afresh. A grid of more than 1e9 positions or
     ~500 GB is refused as a likely typo.
     """
+    from .._io import check_folder_output
     from ..database import build_database
 
+    check_folder_output(out)
     r = build_database(dem, out, bounds, spacing_m, camera_height_m=camera_height_m,
                        azimuth_bins=azimuth_bins, max_distance_m=max_distance_m, planet=planet,
                        workers=workers, scheduler=scheduler, overwrite=overwrite,
