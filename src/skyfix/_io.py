@@ -52,14 +52,50 @@ def _nearest_existing(path: Path) -> Path:
     return p
 
 
+def _file_in_the_way(path: Path) -> Path | None:
+    """``path`` or its nearest existing ancestor when that is a file, not a folder, else None."""
+    anc = _nearest_existing(path)
+    return anc if os.path.lexists(anc) and not anc.is_dir() else None
+
+
 def check_folder_output(path) -> Path:
     """Refuse, before any work, a folder output (created with its parents) whose path runs
     through a file: the failure would come late and name a temporary folder."""
     path = Path(path)
-    anc = _nearest_existing(path)
-    if os.path.lexists(anc) and not anc.is_dir():
-        raise cannot_write(path, f"{anc} is a file, not a folder")
+    blocker = _file_in_the_way(path)
+    if blocker is not None:
+        raise cannot_write(path, f"{blocker} is a file, not a folder")
     return path
+
+
+@contextmanager
+def writing_to(out):
+    """Turn an operating-system error while writing the folder output ``out`` (a read-only place,
+    a parent that is a file, a full disk) into a one-line error instead of a traceback.
+
+    An error naming a file elsewhere (reading the DEM, say) is not about ``out`` and passes on.
+    """
+    try:
+        yield
+    except OSError as e:
+        if e.filename is not None and not _concerns(Path(e.filename), Path(out)):
+            raise
+        reason = _reason(e)
+        where = f" ({e.filename})" if e.filename and str(e.filename) != str(out) else ""
+        # mkdir under a file says "File exists" or "Not a directory": name the file instead
+        blocker = _file_in_the_way(Path(out).parent)
+        if blocker is not None:
+            reason, where = f"{blocker} is a file, not a folder", ""
+        raise cannot_write(out, f"{reason}{where}; choose another --out") from None
+
+
+def _concerns(path: Path, out: Path) -> bool:
+    """Whether ``path`` is ``out``, inside it, one of its parents, or a staging sibling of it."""
+    path, out = path.resolve(), out.resolve()
+    if path == out or out in path.parents or path in out.parents:
+        return True
+    # the simulator renders into a hidden sibling (.NAME.xxx.partial) before it takes out's place
+    return out.parent in path.parents and path.relative_to(out.parent).parts[0].startswith(f".{out.name}.")
 
 
 def _missing_folder_reason(path: Path) -> str | None:
@@ -67,9 +103,9 @@ def _missing_folder_reason(path: Path) -> str | None:
     parent = path.parent
     if parent.is_dir():
         return None
-    anc = _nearest_existing(parent)
-    if os.path.lexists(anc) and not anc.is_dir():
-        return f"{anc} is a file, not a folder"
+    blocker = _file_in_the_way(parent)
+    if blocker is not None:
+        return f"{blocker} is a file, not a folder"
     return f"folder {parent} does not exist (create it first, or give another path)"
 
 

@@ -16,7 +16,7 @@ def demo(out, seed, overwrite):
     simulate a rover's 360 deg frame set at a hidden position, detect its skyline, locate it,
     and print the fix and its error."""
     from ..demo import run_demo
-    from .simulate import writing_to
+    from .._io import writing_to
 
     with writing_to(out):
         run_demo(out, seed=seed, overwrite=overwrite, say=click.echo)

@@ -36,7 +36,7 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
     report.html to OUT."""
     from ..evaluate import EvalConfig
     from ..evaluate import evaluate as run
-    from .simulate import writing_to
+    from .._io import writing_to
 
     cfg = EvalConfig(scenario=scenario, sets=tuple(s.strip().upper() for s in sets.split(",") if s.strip()),
                      cases=cases, seed=seed, area=tuple(area) if area else None,

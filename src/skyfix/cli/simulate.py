@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from contextlib import contextmanager
-
 import click
+
+from .._io import writing_to
 
 CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [0, 1]: dust, clouds "
                   "(Earth), rocks, glare, overexposed, dark, blur. Example: dust:0.5,rocks.")
@@ -130,37 +130,3 @@ def _check_out(out, overwrite: bool, dem=None) -> None:
         d, o = Path(dem).resolve(), p.resolve()
         if o == d.parent or o in d.parents:
             raise ParameterError(f"the DEM {dem} lies inside --out {out}: choose another --out")
-
-
-@contextmanager
-def writing_to(out):
-    """Turn an operating-system error while writing ``out`` (a read-only place, a parent that is
-    a file, a full disk) into a one-line error instead of a traceback.
-
-    An error naming a file elsewhere (reading the DEM, say) is not about ``out`` and passes on.
-    """
-    from pathlib import Path
-
-    from ..errors import SkyfixError
-
-    try:
-        yield
-    except OSError as e:
-        if e.filename is not None and not _concerns(Path(e.filename), Path(out)):
-            raise
-        reason = e.strerror or str(e)
-        where = f" ({e.filename})" if e.filename and str(e.filename) != str(out) else ""
-        # mkdir under a file says "File exists" or "Not a directory": name the file instead
-        blocker = next((a for a in Path(out).parents if a.exists()), None)
-        if blocker is not None and not blocker.is_dir():
-            reason, where = f"{blocker} is a file, not a folder", ""
-        raise SkyfixError(f"cannot write {out}: {reason}{where}; choose another --out") from None
-
-
-def _concerns(path, out) -> bool:
-    """Whether ``path`` is ``out``, inside it, one of its parents, or a staging sibling of it."""
-    path, out = path.resolve(), out.resolve()
-    if path == out or out in path.parents or path in out.parents:
-        return True
-    # the simulator renders into a hidden sibling (.NAME.xxx.partial) before it takes out's place
-    return out.parent in path.parents and path.relative_to(out.parent).parts[0].startswith(f".{out.name}.")
