@@ -284,16 +284,20 @@ class InProcessExecutor(Executor):
         return f
 
 
+def _is_whole_at_least_0(v) -> bool:
+    """A count given by a user: a whole number >= 0 (3.0 counts, True and "3" do not)."""
+    try:
+        return not isinstance(v, bool) and int(v) == v and v >= 0
+    except (TypeError, ValueError, OverflowError):
+        return False
+
+
 def check_executor_options(workers: int | None, scheduler: str | None) -> None:
     """Refuse bad ``workers`` / ``scheduler`` values (before a build touches any file)."""
     if workers is not None and scheduler is not None:
         raise ParameterError("give either --workers or --scheduler, not both")
     if workers is not None:
-        try:
-            ok = not isinstance(workers, bool) and int(workers) == workers and workers >= 0
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
+        if not _is_whole_at_least_0(workers):
             raise ParameterError(f"--workers must be a whole number >= 0 (0: in this process), got {workers}")
     if scheduler is not None:
         why = "not a string"
@@ -1165,11 +1169,7 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
     from .dem import Dem, load_dem
     from .horizon import render_horizons
 
-    try:
-        count_ok = not isinstance(samples, bool) and int(samples) == samples and samples >= 0
-    except (TypeError, ValueError):
-        count_ok = False
-    if not count_ok:
+    if not _is_whole_at_least_0(samples):
         raise ParameterError(f"samples must be a whole number >= 0 (0: checksums only), got {samples!r}")
     samples = int(samples)
     db = open_database(path, allow_incomplete=True)
