@@ -610,8 +610,8 @@ def _texture_region(gray_s, valid_s, opt: DpOptions, sure_sky=None):
     # camera's sky darkens steeply towards the horizon, and that gradient is texture to Sobel. In
     # a raw frame the noise floor above happens to cover it; JPEG, a slight blur or the resampling
     # of a stitched panorama remove the noise, and the sky then looked textured (see DpOptions)
-    if (sure_sky is not None and opt.sure_sky_q > 0 and np.count_nonzero(sure_sky) >= 100
-            and np.count_nonzero(sure_sky) >= opt.sure_sky_share * np.count_nonzero(valid_s)):
+    n_sure = np.count_nonzero(sure_sky) if sure_sky is not None and opt.sure_sky_q > 0 else 0
+    if n_sure >= 100 and n_sure >= opt.sure_sky_share * np.count_nonzero(valid_s):
         thr = max(thr, float(np.percentile(tex[sure_sky], opt.sure_sky_q)))
     # log ratio to the sky threshold: < 0 looks like sky, > 0 like terrain; clipped so a few
     # wild pixels cannot dominate a column
@@ -869,8 +869,6 @@ def _detect_dp(img, valid, opt: DpOptions, model=None):
                                     min_share=opt.cloud_sure_share)
                 tex = np.where(cloud, 0.0, tex)
             d = opt.w_model * d + tex
-    elif region != "texture":
-        raise ParameterError(f"unknown region term {opt.region!r}: choose 'model' or 'texture'")
     enter, vert, G, none, d = _dp_costs(gray_s, valid_s, opt, d)
     top, bottom = _dp_solve(enter, vert, G, none, 1, opt.jump_cost, opt.w_diff, opt.switch_cost)
     h, w = gray_s.shape
@@ -1011,8 +1009,6 @@ def _detect_bayes(img, valid, opt: BayesOptions, model=None):
     if opt.init == "model" and lo_s is not None:
         # start from the learned sky classifier's log-odds (terrain positive) added to the prior
         llr = llr - opt.w_model * np.clip(lo_s, -3.0, 3.0)
-    elif opt.init not in ("model", "prior"):
-        raise ParameterError(f"unknown bayes init {opt.init!r}: choose 'model' or 'prior'")
     ok = _skyline_allowed(valid_s, opt.min_sky_rows)
     B = _boundary_strength(gray_s, valid_s)
     rng = np.random.default_rng(opt.seed)
