@@ -150,7 +150,7 @@ def loo_models(folder, names, sim_dirs=(), sim_max_frames=10, grey=False):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
     from train_sky_model import as_grey, read_labelled, simulated_frames, training_views
 
-    from skyfix.skymodel import fit_sky_model, training_pixels
+    from skyfix.detect.skymodel import fit_sky_model, training_pixels
 
     def views(img, sky):
         return [training_pixels(as_grey(im) if grey else im, sk)

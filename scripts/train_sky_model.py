@@ -42,7 +42,7 @@ def read_labelled(folder):
     """Yield (name, RGB image, sky mask) for each NAME.png with a NAME_label.png."""
     import cv2
 
-    from skyfix.skymodel import sky_label_mask
+    from skyfix.detect.skymodel import sky_label_mask
 
     for lab_path in sorted(Path(folder).glob("*_label.png")):
         name = lab_path.name[: -len("_label.png")]
@@ -136,7 +136,7 @@ def training_views(img, sky, sky_crops=True):
 
 
 def main(argv=None):
-    from skyfix.skymodel import fit_sky_model, training_pixels
+    from skyfix.detect.skymodel import fit_sky_model, training_pixels
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "marsscapes-dev"))

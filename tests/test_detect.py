@@ -209,7 +209,7 @@ def test_mask_excludes_region():
 
 
 def test_short_isolated_runs_are_dropped():
-    from skyfix.detect import _drop_short_runs
+    from skyfix.detect.runs import drop_short_runs as _drop_short_runs
 
     rows = np.full(30, np.nan)
     rows[2:5] = 10.0     # 3 columns: dropped
@@ -222,7 +222,7 @@ def test_short_isolated_runs_are_dropped():
 
 
 def test_weak_runs_survive_only_as_a_skylines_continuation():
-    from skyfix.detect import _drop_unanchored_runs
+    from skyfix.detect.runs import drop_unanchored_runs as _drop_unanchored_runs
 
     rows = np.full(2000, np.nan)
     conf = np.zeros(2000)
@@ -358,7 +358,7 @@ def test_real_mosaic_without_sky(method):
 # --- the learned sky classifier (region term of dp) ----------------------------------------------
 
 def test_shipped_model_loads_and_is_small():
-    from skyfix.skymodel import DEFAULT_GREY_MODEL, DEFAULT_MODEL, FEATURE_NAMES, load_sky_model
+    from skyfix.detect.skymodel import DEFAULT_GREY_MODEL, DEFAULT_MODEL, FEATURE_NAMES, load_sky_model
 
     for m, path in ((load_sky_model(), DEFAULT_MODEL), (load_sky_model(grey=True), DEFAULT_GREY_MODEL)):
         assert m.feature_names == FEATURE_NAMES and m.roots.size > 0
@@ -371,7 +371,7 @@ def test_tree_export_matches_sklearn():
     # the numba evaluator against scikit-learn's own prediction on the same fitted model
     from sklearn.ensemble import HistGradientBoostingClassifier
 
-    from skyfix.skymodel import N_FEATURES, from_sklearn
+    from skyfix.detect.skymodel import N_FEATURES, from_sklearn
 
     rng = np.random.default_rng(0)
     X = rng.normal(size=(3000, N_FEATURES)).astype(np.float32)
@@ -383,12 +383,12 @@ def test_tree_export_matches_sklearn():
 
 
 def _model_llr(img):
-    from skyfix import detect as D
-    from skyfix.skymodel import load_sky_model
+    from skyfix.detect.image import fill_invalid, to_float_gray, trusted, valid_mask
+    from skyfix.detect.skymodel import load_sky_model, sky_log_odds
 
-    valid = D._trusted(D._valid_mask(img, None, True))
-    gray = D._fill_invalid(D._to_float_gray(img), valid)
-    lo, v, fm = D.sky_log_odds(img, valid, gray, load_sky_model(), 250_000)
+    valid = trusted(valid_mask(img, None, True))
+    gray = fill_invalid(to_float_gray(img), valid)
+    lo, v, fm = sky_log_odds(img, valid, gray, load_sky_model(), 250_000)
     assert fm == 1
     return lo
 
@@ -435,7 +435,7 @@ def test_cloud_rule_needs_a_representative_clear_sky():
     """The cloud rule compares a pixel with the smooth ("unmistakable") sky. When that is a small
     remnant of what the classifier calls sky, it stands down: the remnant is the dark corner of a
     wide field's sky, and sunlit ground is brighter than it in every channel."""
-    from skyfix.detect import _cloud_like
+    from skyfix.detect.dp import _cloud_like
 
     h, w = 60, 80
     valid = np.ones((h, w), bool)
@@ -541,7 +541,7 @@ def test_bayes_on_a_wide_camera_needs_the_sure_sky_threshold(tmp_path):
 
 def test_training_recipe_learns_synthetic_sky():
     # train on synthetic images only, then classify a held-out one (no dev data needed)
-    from skyfix.skymodel import fit_sky_model, training_pixels
+    from skyfix.detect.skymodel import fit_sky_model, training_pixels
 
     parts = []
     for seed in range(3):
@@ -552,11 +552,12 @@ def test_training_recipe_learns_synthetic_sky():
     model, _ = fit_sky_model(parts, per_image=5000, max_iter=20)
     rows = 90 - 0.2 * np.arange(260)
     img, _ = synth(rows, seed=30)
-    from skyfix import detect as D
+    from skyfix.detect.image import fill_invalid, to_float_gray, trusted, valid_mask
+    from skyfix.detect.skymodel import sky_log_odds
 
-    valid = D._trusted(D._valid_mask(img, None, True))
-    gray = D._fill_invalid(D._to_float_gray(img), valid)
-    lo, _, _ = D.sky_log_odds(img, valid, gray, model, 250_000)
+    valid = trusted(valid_mask(img, None, True))
+    gray = fill_invalid(to_float_gray(img), valid)
+    lo, _, _ = sky_log_odds(img, valid, gray, model, 250_000)
     r = np.arange(160)[:, None]
     assert (lo[r < rows[None, :] - 3] > 0).mean() >= 0.95
     assert (lo[r > rows[None, :] + 3] < 0).mean() >= 0.95

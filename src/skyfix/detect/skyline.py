@@ -1,0 +1,50 @@
+"""The one entry point: :func:`detect_skyline` checks the image and options and runs a method.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from ..errors import ParameterError
+from ..formats import Skyline
+from .bayes import detect_bayes
+from .dp import detect_dp
+from .image import as_gray_rgb, is_grey_rgb, valid_mask
+from .options import METHODS, PRESETS, check_options
+
+#: method name -> detector(img, valid, options, model) -> (rows, confidence, column validity);
+#: a new detector enters here and in :data:`skyfix.detect.options.PRESETS`
+DETECTORS = {"dp": detect_dp, "bayes": detect_bayes}
+
+
+def detect_skyline(image, *, mask=None, method: str = "dp", name: str = "", model=None,
+                   **options) -> Skyline:
+    """The skyline of one image.
+
+    image : H x W x 3 RGB (uint8, uint16 or float in [0, 1]) or H x W grey
+    mask : optional bool H x W, True where the image holds valid data
+    method : ``"dp"`` (default) or ``"bayes"``
+    name : image name written into the result
+    model : the sky classifier (:class:`skyfix.skymodel.SkyModel` or a path to one); None = the
+        shipped model ``skyfix/models/sky_hgb.npz``
+    options : fields of :class:`DpOptions` / :class:`BayesOptions` to override
+
+    Returns a :class:`Skyline`: ``rows`` [px, 0-based, first terrain row below the sky] with NaN
+    where no skyline is visible, ``confidence`` in [0, 1], ``valid`` = columns with any valid
+    pixel. Raises :class:`ParameterError` on a bad image, mask, method or option.
+    """
+    if method not in PRESETS:
+        raise ParameterError(f"unknown detection method {method!r}: choose one of {', '.join(METHODS)}")
+    base = PRESETS[method]
+    try:
+        opt = replace(base, **options)
+    except TypeError as e:
+        raise ParameterError(f"bad option for method {method!r}: {e}") from None
+    check_options(opt)
+    img, _, _ = as_gray_rgb(image)
+    if img.ndim == 3 and is_grey_rgb(img):
+        img = img[..., 0]  # a grey image stored as RGB: treated as the grey image it is
+    valid = valid_mask(img, mask, opt.no_data_black)
+    H, W = img.shape[:2]
+    rows, conf, col_valid = DETECTORS[method](img, valid, opt, model)
+    return Skyline(rows=rows, width=W, height=H, image=name, confidence=conf, valid=col_valid)

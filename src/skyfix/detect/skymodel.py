@@ -1,0 +1,363 @@
+"""A small learned sky-vs-terrain pixel classifier: the region term of the ``dp`` detector.
+
+Features (:func:`sky_features`) are general image statistics computed on a downscaled copy,
+all relative to the image itself so that exposure, white balance and sensor noise level do not
+matter (with absolute brightness, chroma and texture the ensemble learnt each dev image's look
+and did worse on held-out images): brightness relative to the image and to the top of the
+column, chroma relative to the image median, local texture (relative to the image median) at three scales, the signed vertical gradient, and the mean
+texture of the column above the pixel (sky lies on top, so texture above a pixel argues for
+terrain). The row position is deliberately not a feature: in the dev mosaics the sky is always
+a thin band at the top, and a tree ensemble learns that as a hard rule that fails on a frame with
+more sky (the detector's own ``w_height`` term is the weak position prior).
+
+The classifier is a gradient-boosted tree ensemble trained by ``scripts/train_sky_model.py``
+(scikit-learn ``HistGradientBoostingClassifier``) on the labelled dev mosaics; its trees are
+exported to plain arrays in ``skyfix/models/sky_hgb.npz`` and evaluated here by a numba kernel,
+so run time needs neither scikit-learn nor a pickle (no version lock, nothing downloaded).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from ..errors import ParameterError
+from .image import (as_gray_rgb, downscale, downscale_factor, downscale_valid, fill_invalid,
+                    to_float_gray, trusted, valid_mask)
+
+FEATURE_NAMES = (
+    "log_gray_rel_image", "log_gray_rel_coltop", "log_local_mean_rel",
+    "chroma_r_rel", "chroma_b_rel",
+    "tex3", "tex9", "tex27",
+    "vgrad", "tex_above",
+)
+N_FEATURES = len(FEATURE_NAMES)
+
+DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "models" / "sky_hgb.npz"
+#: the same recipe on grey copies of the training images, for images without colour
+DEFAULT_GREY_MODEL = Path(__file__).resolve().parents[1] / "models" / "sky_hgb_grey.npz"
+
+SKY_RGB = (34, 56, 19)  # MarsScapes label colour of sky
+
+
+@numba.njit(cache=True)
+def _column_context(tex, valid, gray):
+    """Per pixel: rows below the column's first valid pixel, mean texture of the valid pixels
+    above it (itself excluded; 0 at the top), and the mean grey of the first 5 valid rows."""
+    H, W = tex.shape
+    below = np.zeros((H, W), np.float32)
+    above = np.zeros((H, W), np.float32)
+    top_gray = np.zeros(W, np.float32)
+    for c in range(W):
+        t0 = -1
+        s = 0.0
+        n = 0
+        tg = 0.0
+        ng = 0
+        for r in range(H):
+            if valid[r, c]:
+                if t0 < 0:
+                    t0 = r
+                if ng < 5:
+                    tg += gray[r, c]
+                    ng += 1
+            below[r, c] = (r - t0) if t0 >= 0 else 0.0
+            above[r, c] = s / n if n > 0 else 0.0
+            if valid[r, c]:
+                s += tex[r, c]
+                n += 1
+        top_gray[c] = tg / ng if ng > 0 else 0.0
+    return below, above, top_gray
+
+
+def sky_features(gray_s, rgb_s, valid_s):
+    """Per-pixel features of a working-scale image.
+
+    gray_s : (h, w) float grey [0-255 grey levels], no-data already filled
+    rgb_s : (h, w, 3) float RGB [0-255] or None (a grey image: neutral chroma)
+    valid_s : (h, w) bool
+    Returns (h, w, N_FEATURES) float32, finite everywhere.
+    """
+    import cv2
+
+    h, w = gray_s.shape
+    g = np.asarray(gray_s, np.float32)
+    anyv = bool(valid_s.any())
+    med = float(np.median(g[valid_s])) if anyv else float(np.median(g))
+    med = max(med, 1.0)
+    sm = cv2.GaussianBlur(g, (3, 3), 0.8)
+    gx = cv2.Sobel(sm, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(sm, cv2.CV_32F, 0, 1, ksize=3)
+    mag = np.sqrt(gx * gx + gy * gy)
+    mmed = float(np.median(mag[valid_s])) if anyv else float(np.median(mag))
+    mmed = max(mmed, 1e-3)
+    tex = [np.log1p(cv2.blur(mag, (k, k)) / mmed) for k in (3, 9, 27)]
+    below, above, top_gray = _column_context(tex[1], valid_s, g)
+    lg = np.log(g + 1.0)
+    feats = [
+        lg - math.log(med + 1.0),
+        lg - np.log(top_gray + 1.0)[None, :],
+        np.log(cv2.blur(g, (15, 15)) + 1.0) - math.log(med + 1.0),
+    ]
+    if rgb_s is not None:
+        rgb = np.asarray(rgb_s, np.float32)
+        s = rgb.sum(axis=2) + 3.0
+        for ch in (0, 2):
+            cr = (rgb[..., ch] + 1.0) / s
+            feats.append(cr - (float(np.median(cr[valid_s])) if anyv else float(np.median(cr))))
+    else:
+        feats += [np.zeros((h, w), np.float32)] * 2
+    feats += tex
+    feats.append(cv2.blur(gy, (9, 3)) / mmed)
+    feats.append(above)
+    X = np.stack([np.asarray(f, np.float32) for f in feats], axis=-1)
+    return np.nan_to_num(X, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+@numba.njit(cache=True, parallel=True)
+def _ensemble_raw(X, feat, thr, left, right, value, roots, depth, baseline):
+    """Raw (log-odds) score of each row of X under a forest of binary trees stored as arrays.
+
+    Leaves point to themselves with an infinite threshold, so every tree is walked a fixed
+    ``depth[t]`` steps with a branch-free select, and the pixel loop sits inside the tree loop
+    (per block of pixels): independent pixels overlap in the CPU instead of stalling on
+    mispredicted branches.
+    """
+    n = X.shape[0]
+    out = np.full(n, baseline)
+    block = 4096
+    nb = (n + block - 1) // block
+    for b in numba.prange(nb):
+        i0 = b * block
+        i1 = min(n, i0 + block)
+        for t in range(roots.size):
+            root = roots[t]
+            dt = depth[t]
+            for i in range(i0, i1):
+                k = root
+                for _ in range(dt):
+                    k = left[k] if X[i, feat[k]] <= thr[k] else right[k]
+                out[i] += value[k]
+    return out
+
+
+def _walk_tables(feat, thr, left, right, leaf, roots):
+    """Self-looping leaves and per-tree depths for :func:`_ensemble_raw`."""
+    feat = np.where(leaf, 0, feat).astype(np.int64)
+    thr = np.where(leaf, np.inf, thr).astype(np.float64)
+    idx = np.arange(feat.size)
+    left = np.where(leaf, idx, left).astype(np.int64)
+    right = np.where(leaf, idx, right).astype(np.int64)
+    depth = np.zeros(roots.size, np.int64)
+    for t, r in enumerate(roots):
+        level, d = [int(r)], 0
+        while True:
+            nxt = [c for k in level if not leaf[k] for c in (left[k], right[k])]
+            if not nxt:
+                break
+            level, d = nxt, d + 1
+        depth[t] = d
+    return feat, thr, left, right, depth
+
+
+@dataclass(frozen=True)
+class SkyModel:
+    """A tree ensemble giving the log-odds that a pixel is terrain rather than sky.
+
+    Arrays are concatenated node tables; ``roots`` holds each tree's first node. ``left`` and
+    ``right`` are absolute node indices. ``feature_names`` guards against a model trained on
+    another feature set.
+    """
+
+    feat: np.ndarray
+    thr: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    leaf: np.ndarray
+    value: np.ndarray
+    roots: np.ndarray
+    baseline: float
+    feature_names: tuple
+
+    def log_odds_sky(self, X):
+        """log P(sky) / P(terrain) per row of X (n, N_FEATURES)."""
+        X = np.ascontiguousarray(X, dtype=np.float32).reshape(-1, N_FEATURES)
+        f, t, lft, rgt, depth = self._tables()
+        return _ensemble_raw(X, f, t, lft, rgt, self.value, self.roots, depth, self.baseline)
+
+    def _tables(self):
+        tab = self.__dict__.get("_tab")
+        if tab is None:
+            tab = _walk_tables(self.feat, self.thr, self.left, self.right, self.leaf, self.roots)
+            object.__setattr__(self, "_tab", tab)  # a cache, not state: frozen otherwise
+        return tab
+
+    def save(self, path):
+        from ._io import atomic_path
+
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, feat=self.feat, thr=self.thr, left=self.left,
+                                    right=self.right, leaf=self.leaf, value=self.value,
+                                    roots=self.roots, baseline=np.float64(self.baseline),
+                                    feature_names=np.array(self.feature_names))
+
+
+def from_sklearn(clf) -> SkyModel:
+    """Export a fitted binary ``HistGradientBoostingClassifier`` (classes False/True = sky) to
+    arrays. Its leaf values already include the learning rate."""
+    if list(clf.classes_) != [False, True]:
+        raise ParameterError(f"expected classes [False, True] (True = sky), got {clf.classes_}")
+    feats, thrs, lefts, rights, leaves, values, roots = [], [], [], [], [], [], []
+    off = 0
+    for it in clf._predictors:
+        nodes = it[0].nodes
+        if np.any(nodes["is_categorical"]):
+            raise ParameterError("categorical splits are not supported")
+        n = len(nodes)
+        roots.append(off)
+        feats.append(nodes["feature_idx"].astype(np.int64))
+        thrs.append(nodes["num_threshold"].astype(np.float64))
+        lefts.append(nodes["left"].astype(np.int64) + off)
+        rights.append(nodes["right"].astype(np.int64) + off)
+        leaves.append(nodes["is_leaf"].astype(np.bool_))
+        values.append(nodes["value"].astype(np.float64))
+        off += n
+    base = float(np.ravel(clf._baseline_prediction)[0])
+    return SkyModel(np.concatenate(feats), np.concatenate(thrs), np.concatenate(lefts),
+                    np.concatenate(rights), np.concatenate(leaves), np.concatenate(values),
+                    np.array(roots, np.int64), base, tuple(FEATURE_NAMES))
+
+
+def load_sky_model(path=None, *, grey: bool = False) -> SkyModel:
+    """Load a model written by :meth:`SkyModel.save` (default: the shipped one, for colour
+    images, or with ``grey`` the one trained on grey copies)."""
+    default = DEFAULT_GREY_MODEL if grey else DEFAULT_MODEL
+    return _load_cached(str(Path(path) if path is not None else default))
+
+
+@lru_cache(maxsize=4)
+def _load_cached(path: str) -> SkyModel:
+    p = Path(path)
+    if not p.is_file():
+        raise ParameterError(
+            f"sky model {p} not found: train one with scripts/train_sky_model.py")
+    with np.load(p, allow_pickle=False) as z:
+        names = tuple(str(s) for s in z["feature_names"])
+        if names != FEATURE_NAMES:
+            raise ParameterError(
+                f"sky model {p} was trained on features {names}, this code computes "
+                f"{FEATURE_NAMES}: retrain with scripts/train_sky_model.py")
+        return SkyModel(z["feat"].astype(np.int64), z["thr"].astype(np.float64),
+                        z["left"].astype(np.int64), z["right"].astype(np.int64),
+                        z["leaf"].astype(np.bool_), z["value"].astype(np.float64),
+                        z["roots"].astype(np.int64), float(z["baseline"]), names)
+
+
+def sky_label_mask(label_rgb):
+    """True where a MarsScapes label image (H, W, 3 RGB) marks sky."""
+    lab = np.asarray(label_rgb)
+    return np.all(lab[..., :3] == np.array(SKY_RGB, lab.dtype), axis=-1)
+
+
+# --- training (scikit-learn needed only here) -----------------------------------------------------
+
+def training_pixels(image, sky_mask, *, model_pixels=250_000, no_data_black=True):
+    """Features and labels of one labelled image on the classifier's scale.
+
+    image : H x W x 3 RGB or H x W grey; sky_mask : H x W bool, True = sky (labels).
+    Returns (X (n, N_FEATURES) float32, y (n,) bool, True = sky): the valid model-scale pixels
+    whose label is pure (a mixed pixel on the boundary says nothing clean).
+    """
+    import cv2
+
+    img, _, _ = as_gray_rgb(image)
+    sky_mask = np.asarray(sky_mask, bool)
+    if sky_mask.shape != img.shape[:2]:
+        raise ParameterError(f"label shape {sky_mask.shape} does not match image {img.shape[:2]}")
+    # the 2 px margin the shipped model was trained with (detection trusts 3 px in since; the
+    # training pixels are sampled well inside the sky and the ground, where it makes no odds)
+    valid = trusted(valid_mask(img, None, no_data_black), margin=2)
+    gray = fill_invalid(to_float_gray(img), valid)
+    X, v_m, fm = sky_inputs(img, valid, gray, model_pixels)
+    frac = downscale(sky_mask.astype(np.float32), fm)
+    if frac.shape != v_m.shape:  # cv2 rounding; both are floor(H / fm)
+        frac = cv2.resize(frac, (v_m.shape[1], v_m.shape[0]), interpolation=cv2.INTER_AREA)
+    keep = v_m & ((frac <= 0.1) | (frac >= 0.9))
+    return X[keep], frac[keep] >= 0.9
+
+
+def fit_sky_model(parts, *, per_image=20_000, seed=0, max_iter=60, max_leaf_nodes=16,
+                  max_depth=4, learning_rate=0.15, balance=True):
+    """Train the classifier on several images' :func:`training_pixels` (X, y) pairs.
+
+    Each image contributes at most ``per_image`` pixels, drawn at random, and equal total weight,
+    so a large mosaic does not outvote a small one; with ``balance`` sky and terrain get equal
+    total weight (prior odds 1). Returns (:class:`SkyModel`, the fitted scikit-learn estimator).
+    """
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    rng = np.random.default_rng(seed)
+    Xs, ys, ws = [], [], []
+    for X, y in parts:
+        if len(y) == 0:
+            continue
+        idx = rng.choice(len(y), size=min(per_image, len(y)), replace=False)
+        Xs.append(X[idx])
+        ys.append(y[idx])
+        ws.append(np.full(idx.size, 1.0 / idx.size))
+    if not Xs:
+        raise ParameterError("no labelled pixels to train the sky model on")
+    X = np.concatenate(Xs)
+    y = np.concatenate(ys)
+    if y.all() or not y.any():
+        raise ParameterError("training pixels hold only one class (need both sky and terrain)")
+    w = np.concatenate(ws)
+    if balance:
+        # equal total weight to sky and terrain: the region term should carry the evidence of the
+        # pixels, not the dev set's share of sky (which an unseen panorama need not share)
+        w = np.where(y, w / w[y].sum(), w / w[~y].sum())
+    w *= len(y) / w.sum()
+    clf = HistGradientBoostingClassifier(max_iter=max_iter, max_leaf_nodes=max_leaf_nodes,
+                                         max_depth=max_depth,
+                                         learning_rate=learning_rate, l2_regularization=1.0,
+                                         min_samples_leaf=100, early_stopping=False,
+                                         random_state=seed)
+    clf.fit(X, y, sample_weight=w)
+    return from_sklearn(clf), clf
+
+
+def sky_inputs(img, valid, gray, model_pixels):
+    """Classifier features on a copy downscaled to at most ``model_pixels`` [px].
+
+    img : the input image; valid : trusted valid pixels; gray : filled float grey.
+    Returns (X (hm, wm, k) float32, valid_m (hm, wm) bool, fm the integer downscale factor).
+    """
+    H, W = gray.shape
+    fm = downscale_factor(H, W, model_pixels)
+    g_m = downscale(gray, fm)
+    v_m = downscale_valid(valid, fm)
+    # chroma needs no filling: it is per pixel, and invalid pixels never enter the region term
+    rgb_m = downscale(np.asarray(img[..., :3], np.float32), fm) if img.ndim == 3 else None
+    return sky_features(g_m, rgb_m, v_m), v_m, fm
+
+
+def sky_log_odds(img, valid, gray, model, model_pixels):
+    """log P(sky)/P(terrain) per pixel of the model-scale copy: (lo (hm, wm), valid_m, fm)."""
+    X, v_m, fm = sky_inputs(img, valid, gray, model_pixels)
+    hm, wm = v_m.shape
+    lo = model.log_odds_sky(X.reshape(hm * wm, -1)).reshape(hm, wm)
+    return lo, v_m, fm
+
+
+def resolve_model(model, grey=False) -> "SkyModel":
+    """A :class:`SkyModel` from a model, a path to one, or None (the shipped colour model, or the
+    grey one when ``grey``)."""
+    if isinstance(model, SkyModel):
+        return model
+    return load_sky_model(model, grey=grey)
