@@ -444,7 +444,7 @@ def test_prior_radius_too_large_or_not_finite(dem_file, profile_json):
 
 def test_prior_area_is_clipped_to_the_dem():
     """A radius reaching past the DEM searches the DEM's part only (no cost beyond it)."""
-    from skyfix.pose import _prior_grid
+    from skyfix.pose.refine import prior_grid as _prior_grid
 
     dem = plane_dem(100, 10)
     gx, gy = _prior_grid(dem, (50.0, 50.0), 1e6, 2.0)

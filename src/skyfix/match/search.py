@@ -1,4 +1,5 @@
-"""Stage 7: match a measured skyline profile against a database of predicted skylines.
+"""The streaming search: every position of a database (or in-memory store) against the query,
+slice by slice, keeping the best candidates in distinct basins.
 
 For every database position the best azimuth shift ``s`` (the heading) minimises the sum of
 squared differences over the observed bins of the query, after a per-shift least-squares fit of a
@@ -26,15 +27,14 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from .database import Block  # one block type for stores on disk and in memory
-from .errors import DatabaseError, ParameterError
-
-#: raw value for "no skyline" in an int16 database
-MISSING_RAW = -32768
+from ..database import Block
+from ..errors import DatabaseError, ParameterError
+from .memory import MISSING_RAW, grid_index
+from .scores import decimate_query, dense_query, prepare_query, score_dense, score_profiles
 
 
 @dataclass(frozen=True)
@@ -71,289 +71,6 @@ PRESETS = {
     "level": MatchConfig(remove_tilt=False),
 }
 
-
-@dataclass
-class Query:
-    """A prepared query: kernels in the frequency domain for one bin count.
-
-    n : bins; mask : observed bins; m_obs : count; full : every bin observed
-    """
-
-    n: int
-    q: np.ndarray
-    mask: np.ndarray
-    m_obs: int
-    full: bool
-    sq: float
-    u_q: np.ndarray  # whitened: (L^T U)^T M q with G^-1 = L L^T
-    g_inv: np.ndarray
-    k_p: np.ndarray  # (n_kernels, n//2+1) conj spectra correlated with p: [m q, m U_0, m U_1, ...]
-    k_p2: np.ndarray | None  # conj spectrum of m, correlated with p^2 (None when full)
-    kernels: np.ndarray | None = None  # float64 (n_kernels, n) the same kernels in the bin domain
-
-
-def _basis(n: int, remove_tilt: bool) -> np.ndarray:
-    az = np.radians(np.arange(n) * 360.0 / n)
-    cols = [np.ones(n)]
-    if remove_tilt:
-        cols += [np.cos(az), np.sin(az)]
-    return np.stack(cols, axis=1)
-
-
-def prepare_query(elevation_deg, remove_tilt: bool = True, min_observed: int = 20) -> Query:
-    """Kernels for :func:`score_profiles` from a body-frame profile [deg] (NaN = unobserved)."""
-    import scipy.fft as sf
-
-    q = np.asarray(elevation_deg, np.float64)
-    n = q.size
-    mask = np.isfinite(q)
-    m_obs = int(mask.sum())
-    u = _basis(n, remove_tilt)
-    need = max(min_observed, u.shape[1] + 2)
-    if m_obs < need:
-        raise ParameterError(
-            f"the profile has {m_obs} observed azimuth bins; at least {need} are needed to match "
-            "(a wider view or more frames)")
-    m = mask.astype(np.float64)
-    qz = np.where(mask, q, 0.0)
-    # Centre q over its observed bins: the constant is fitted anyway and this keeps float32 sums small.
-    qz = np.where(mask, qz - qz[mask].mean(), 0.0)
-    g = u.T @ (m[:, None] * u)
-    try:
-        g_inv = np.linalg.inv(g)
-    except np.linalg.LinAlgError:
-        raise ParameterError("observed bins too few or too clustered to fit the tilt harmonic; "
-                             "match with remove_tilt=False") from None
-    if np.linalg.cond(g) > 1e6:
-        raise ParameterError("observed bins too clustered to fit the tilt harmonic; "
-                             "match with remove_tilt=False")
-    # Whiten the nuisance kernels with G^-1 = L L^T: the quadratic form becomes a sum of squares.
-    chol = np.linalg.cholesky(g_inv)
-    uw = u @ chol
-    kernels = [m * qz] + [m * uw[:, i] for i in range(u.shape[1])]
-    full = bool(mask.all())
-    k_p = np.conj(sf.rfft(np.stack(kernels), axis=1)).astype(np.complex64)
-    k_p2 = None if full else np.conj(sf.rfft(m)).astype(np.complex64)
-    return Query(n, np.where(mask, q, np.nan), mask, m_obs, full, float(np.sum(qz * qz)),
-                 uw.T @ (m * qz), g_inv, k_p, k_p2, np.stack(kernels))
-
-
-@dataclass
-class DenseQuery:
-    """A query as circulant matrices: every shift's correlations in one matrix product.
-
-    k_lin : float32 (n, n_kernels * n), column ``i * n + s`` correlates kernel i at shift s
-    k_sq : float32 (n, n) circulant of the mask, applied to p^2 (None when every bin is observed)
-    """
-
-    n: int
-    m_obs: int
-    sq: float
-    u_q: np.ndarray
-    k_lin: np.ndarray
-    k_sq: np.ndarray | None
-
-
-def dense_query(query: Query) -> DenseQuery:
-    """Circulant form of a prepared query for :func:`score_dense` (cheap for small n, e.g. 90)."""
-    n = query.n
-    # corr(k, p)(s) = sum_l p_l k_{l-s}: column s of the circulant holds k rolled by s.
-    idx = (np.arange(n)[:, None] - np.arange(n)[None, :]) % n
-    kern = query.kernels
-    k_lin = np.ascontiguousarray(kern[:, idx].transpose(1, 0, 2).reshape(n, -1), np.float32)
-    k_sq = None if query.full else np.ascontiguousarray(query.mask.astype(np.float32)[idx])
-    return DenseQuery(n, query.m_obs, query.sq, np.asarray(query.u_q, np.float32), k_lin, k_sq)
-
-
-def score_dense(p: np.ndarray, dq: DenseQuery, all_shifts: bool = False):
-    """As :func:`score_profiles` (same scores, same return values) by matrix products.
-
-    For short profiles (the coarse pass, n = 90) BLAS beats small FFTs by an order of magnitude:
-    ``N x n x (n_kernels + 1) n`` multiply-adds, streamed at full sgemm speed.
-    p : float32 (N, n) [deg]
-    """
-    n = dq.n
-    p = np.asarray(p, np.float32)
-    if p.ndim != 2 or p.shape[1] != n:
-        raise ParameterError(f"profiles have shape {p.shape}, expected (N, {n})")
-    p = p - p.mean(axis=1, keepdims=True)
-    corr = (p @ dq.k_lin).reshape(p.shape[0], -1, n)
-    p *= p
-    if dq.k_sq is None:
-        s = np.sum(p, axis=1, keepdims=True) + np.zeros((1, n), np.float32)
-    else:
-        s = p @ dq.k_sq
-    del p
-    return _finish_scores(s, corr, dq.sq, dq.u_q, dq.m_obs, all_shifts)
-
-
-def _finish_scores(s, corr, sq, u_q, m_obs, all_shifts):
-    n = s.shape[1]
-    s += np.float32(sq)
-    s -= 2.0 * corr[:, 0]
-    for i in range(1, corr.shape[1]):
-        d = corr[:, i]
-        d -= np.float32(u_q[i - 1])
-        d *= d
-        s -= d
-    np.maximum(s, 0.0, out=s)
-    s /= m_obs
-    if all_shifts:
-        return s
-    k = np.argmin(s, axis=1)
-    rows = np.arange(s.shape[0])
-    s0 = s[rows, k]
-    sm = s[rows, (k - 1) % n]
-    sp = s[rows, (k + 1) % n]
-    den = sm - 2 * s0 + sp
-    off = np.where(den > 1e-12, 0.5 * (sm - sp) / np.where(den > 1e-12, den, 1.0), 0.0)
-    off = np.clip(off, -0.5, 0.5)
-    best = s0 - 0.25 * (sm - sp) * off
-    return np.maximum(best, 0.0).astype(np.float32), ((k + off) % n).astype(np.float32)
-
-
-def score_profiles(p: np.ndarray, query: Query, workers: int = 2, all_shifts: bool = False):
-    """Best shift and score for each database profile.
-
-    p : float32 (N, n) [deg] predicted skylines in the world frame (no NaN)
-    Returns ``(score, shift)``: score float32 (N,) = mean squared residual over observed bins
-    [deg^2] at the best shift; shift float32 (N,) [bins], sub-bin by a parabola through the
-    three scores around the best integer shift. With ``all_shifts`` returns the (N, n) scores.
-    """
-    import scipy.fft as sf
-
-    n = query.n
-    p = np.asarray(p, np.float32)
-    if p.ndim != 2 or p.shape[1] != n:
-        raise ParameterError(f"profiles have shape {p.shape}, expected (N, {n})")
-    p = p - p.mean(axis=1, keepdims=True)
-    spec = sf.rfft(p, axis=1, workers=workers)
-    corr = sf.irfft(spec[:, None, :] * query.k_p[None], n=n, axis=2, workers=workers)
-    del spec
-    if query.full:
-        s = np.sum(p * p, axis=1, keepdims=True) + np.zeros((1, n), np.float32)
-    else:
-        s = sf.irfft(sf.rfft(p * p, axis=1, workers=workers) * query.k_p2[None], n=n, axis=1,
-                     workers=workers)
-    return _finish_scores(s, corr, query.sq, query.u_q, query.m_obs, all_shifts)
-
-
-def brute_force_scores(p: np.ndarray, q: np.ndarray, remove_tilt: bool = True) -> np.ndarray:
-    """Reference: (N, n) scores by explicit loops over shifts and a least-squares fit each time.
-
-    Slow and obvious; tests compare :func:`score_profiles` with it.
-    """
-    p = np.asarray(p, np.float64)
-    q = np.asarray(q, np.float64)
-    n = q.size
-    mask = np.isfinite(q)
-    u = _basis(n, remove_tilt)[mask]
-    out = np.empty((p.shape[0], n))
-    for i in range(p.shape[0]):
-        for s in range(n):
-            shifted = np.roll(p[i], -s)  # shifted[j] = p[j + s]
-            r = q[mask] - shifted[mask]
-            coef, *_ = np.linalg.lstsq(u, r, rcond=None)
-            out[i, s] = np.sum((r - u @ coef) ** 2) / mask.sum()
-    return out
-
-
-def decimate_query(q: np.ndarray, factor: int) -> np.ndarray:
-    """Average groups of ``factor`` bins [deg]; a coarse bin is observed if half its bins are."""
-    n = q.size
-    g = q.reshape(n // factor, factor)
-    fin = np.isfinite(g)
-    cnt = fin.sum(axis=1)
-    with np.errstate(invalid="ignore"):
-        mean = np.where(fin, g, 0.0).sum(axis=1) / np.maximum(cnt, 1)
-    return np.where(cnt * 2 >= factor, mean, np.nan)
-
-
-# --- an in-memory store with the database's block interface ---------------------------------------
-
-
-@dataclass
-class MemoryStore:
-    """A skyline store in memory with the read API of ``skyfix.database`` (tests, small areas).
-
-    elevation : (ny, nx, bins) float [deg] over a north-up grid; stored as int16 of ``scale_deg``.
-    """
-
-    x_coords: np.ndarray
-    y_coords: np.ndarray
-    raw: np.ndarray
-    scale_deg: float = 0.01
-    block: int = 64
-    missing: int = MISSING_RAW
-    camera_height_m: float = 1.5
-    planet: str = "earth"
-    crs_wkt: str = ""
-    attrs: dict = field(default_factory=dict)
-
-    @classmethod
-    def from_dem(cls, dem, x_coords, y_coords, *, camera_height_m=1.5, planet="earth",
-                 azimuth_bins=360, block=64, scale_deg=0.01):
-        """Render the skylines of a grid (x ascending, y descending) from a DEM."""
-        from .horizon import render_horizons
-
-        xx, yy = np.meshgrid(np.asarray(x_coords, float), np.asarray(y_coords, float))
-        hb = render_horizons(dem, xx.ravel(), yy.ravel(), camera_height_m=camera_height_m,
-                             planet=planet, azimuth_bins=azimuth_bins)
-        el = hb.elevation_deg.reshape(len(y_coords), len(x_coords), azimuth_bins)
-        return cls.from_elevation(x_coords, y_coords, el, scale_deg=scale_deg, block=block,
-                                  camera_height_m=camera_height_m, planet=str(planet),
-                                  crs_wkt=dem.crs_wkt)
-
-    @classmethod
-    def from_elevation(cls, x_coords, y_coords, elevation_deg, *, scale_deg=0.01, block=64, **kw):
-        el = np.asarray(elevation_deg, np.float64)
-        raw = np.where(np.isfinite(el), np.round(np.nan_to_num(el) / scale_deg), MISSING_RAW)
-        return cls(np.asarray(x_coords, float), np.asarray(y_coords, float),
-                   raw.astype(np.int16), scale_deg, block, **kw)
-
-    @property
-    def shape(self):
-        return self.raw.shape[:2]
-
-    @property
-    def azimuth_bins(self):
-        return self.raw.shape[2]
-
-    @property
-    def spacing_m(self):
-        return float(abs(self.x_coords[1] - self.x_coords[0])) if self.x_coords.size > 1 else 1.0
-
-    def iter_blocks(self):
-        ny, nx = self.shape
-        for r0 in range(0, ny, self.block):
-            for c0 in range(0, nx, self.block):
-                r1, c1 = min(ny, r0 + self.block), min(nx, c0 + self.block)
-                xx, yy = np.meshgrid(self.x_coords[c0:c1], self.y_coords[r0:r1])
-                yield Block(r0, c0, r1 - r0, c1 - c0, xx.ravel(), yy.ravel(),
-                            self.raw[r0:r1, c0:c1].reshape(-1, self.azimuth_bins))
-
-    def index_of(self, x, y):
-        return _grid_index(self, x, y)
-
-    def xy_of(self, row, col):
-        return self.x_coords[col], self.y_coords[row]
-
-    def profiles_at(self, x, y):
-        r, c = self.index_of(x, y)
-        raw = self.raw[np.atleast_1d(r), np.atleast_1d(c)]
-        return np.where(raw == self.missing, np.nan, raw * self.scale_deg).astype(np.float32)
-
-
-def _grid_index(db, x, y):
-    xc, yc = np.asarray(db.x_coords), np.asarray(db.y_coords)
-    dx = xc[1] - xc[0] if xc.size > 1 else 1.0
-    dy = yc[1] - yc[0] if yc.size > 1 else -1.0
-    col = np.rint((np.asarray(x, float) - xc[0]) / dx).astype(np.int64)
-    row = np.rint((np.asarray(y, float) - yc[0]) / dy).astype(np.int64)
-    return row, col
-
-
-# --- the streaming search -------------------------------------------------------------------------
 
 @dataclass(frozen=True)
 class Candidate:
@@ -548,7 +265,7 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
                 if sel.size == 0:
                     t0 = time.perf_counter()
                     continue
-            rr, cc = _grid_index(db, bx, by)
+            rr, cc = grid_index(db, bx, by)
             elev = np.asarray(blk.elevation)
             idx_all = np.arange(bx.size) if sel is None else sel
             for s0 in range(0, idx_all.size, config.slice_rows):

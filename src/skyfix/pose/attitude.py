@@ -1,0 +1,122 @@
+"""Yaw, pitch and roll by Gauss-Newton against a rendered horizon, with restarts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .forward import body_profile
+
+
+@dataclass(frozen=True)
+class Attitude:
+    """An attitude fit: yaw, pitch, roll [deg] with their 1-sigma [deg], and the residual rms
+    [deg] (plain and robust)."""
+
+    yaw_deg: float
+    pitch_deg: float
+    roll_deg: float
+    rms_deg: float
+    yaw_sigma_deg: float
+    pitch_sigma_deg: float
+    roll_sigma_deg: float
+    robust_rms_deg: float = float("nan")  # 1.4826 * MAD: the noise level, outlier bins ignored
+
+
+def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.0, *,
+                 restarts_deg=(-2.5, 0.0, 2.5), prior_pitch_deg=0.0, prior_roll_deg=0.0,
+                 yaw_window_deg=None, yaw_center_deg=None, iterations=12,
+                 accept_deg=None) -> Attitude:
+    """Yaw, pitch, roll [deg] (and a height offset) that best map the world horizon onto the query.
+
+    Gauss-Newton with a numerical Jacobian and Huber weights (outlier bins), restarted from
+    every combination of ``restarts_deg`` offsets on the three axes; the lowest robust cost wins.
+    ``yaw_window_deg`` [deg] keeps yaw within that distance of ``yaw_center_deg`` [deg] (default
+    ``yaw0_deg``), restarts included. With ``accept_deg`` [deg],
+    the fit from the first guess alone is kept when its robust residual level (1.4826 MAD) is
+    below it: the restarts are there to escape false minima, which do not fit at the noise level.
+    """
+    q = np.asarray(query_deg, np.float64)
+    obs = np.isfinite(q)
+    qo = q[obs]
+    n = q.size
+    kw = dict(n_bins=n, prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+
+    def resid(th):
+        r = qo - body_profile(world_el_deg, th[0], th[1], th[2], **kw)[obs]
+        return r - np.median(r)
+
+    def robust(r):
+        s = max(1.4826 * np.median(np.abs(r)), 0.02)
+        k = 2.5 * s
+        a = np.abs(r)
+        return np.where(a <= k, 1.0, k / np.maximum(a, 1e-12)), np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k))
+
+    center = yaw0_deg if yaw_center_deg is None else yaw_center_deg
+
+    def in_window(yaw):
+        # The window is about the prior, not the start: a start at the window's edge plus a
+        # restart and a step returned the truth 20 deg from a +-10 deg prior.
+        if yaw_window_deg is None:
+            return yaw
+        d = (yaw - center + 180.0) % 360.0 - 180.0
+        return center + float(np.clip(d, -yaw_window_deg, yaw_window_deg))
+
+    best = None
+    h = 0.02
+    offsets = [(0.0, 0.0, 0.0)] + [(dy, dp, dr) for dy in restarts_deg for dp in restarts_deg
+                                   for dr in restarts_deg if (dy, dp, dr) != (0.0, 0.0, 0.0)]
+    for k_start, (dy, dp, dr) in enumerate(offsets):
+        if k_start == 1 and accept_deg is not None:
+            rb = best[2]
+            if 1.4826 * np.median(np.abs(rb - np.median(rb))) <= accept_deg:
+                break
+        th = np.array([in_window(yaw0_deg + dy), pitch0_deg + dp, roll0_deg + dr], float)
+        lam = 1e-3
+        r = resid(th)
+        w, cost = robust(r)
+        for _ in range(iterations):
+            jac = np.empty((r.size, 4))
+            for i in range(3):
+                e = np.zeros(3)
+                e[i] = h
+                jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)  # dr/dtheta
+            jac[:, 3] = -1.0  # dr/d(offset): a nuisance, the median is removed anyway
+            jw = jac * w[:, None]
+            a = jac.T @ jw
+            g = jw.T @ r
+            step = np.linalg.solve(a + lam * np.diag(np.diag(a) + 1e-9), -g)[:3]
+            th_new = th + step
+            th_new[0] = in_window(th_new[0])
+            th_new[1:] = np.clip(th_new[1:], -30.0, 30.0)
+            r_new = resid(th_new)
+            w_new, cost_new = robust(r_new)
+            if cost_new < cost:
+                th, r, w, cost = th_new, r_new, w_new, cost_new
+                lam = max(lam / 4, 1e-6)
+                if np.max(np.abs(step)) < 1e-4:
+                    break
+            else:
+                lam *= 8
+                if lam > 1e4:
+                    break
+        if best is None or cost < best[0]:
+            best = (cost, th.copy(), r.copy(), w.copy())
+    cost, th, r, w = best
+    jac = np.empty((r.size, 4))
+    for i in range(3):
+        e = np.zeros(3)
+        e[i] = h
+        jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)
+    jac[:, 3] = -1.0
+    sig2 = float(np.sum(w * r * r) / max(1, r.size - 4))
+    try:
+        cov = np.linalg.inv(jac.T @ (jac * w[:, None])) * sig2
+        sd = np.sqrt(np.clip(np.diag(cov)[:3], 0, None))
+    except np.linalg.LinAlgError:
+        sd = np.full(3, np.inf)
+    rms = float(np.sqrt(np.mean(r * r)))
+    mad = float(1.4826 * np.median(np.abs(r - np.median(r))))
+    return Attitude(float(th[0] % 360.0), float(th[1]), float(th[2]), rms, *map(float, sd), mad)

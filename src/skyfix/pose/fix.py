@@ -1,0 +1,78 @@
+"""What the pose search returns: a position fix (:class:`Fix`) or a heading (:class:`HeadingFix`),
+with the CRS and longitude/latitude of the point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+
+@dataclass(frozen=True)
+class Fix:
+    """The answer of :func:`locate` (``conventions.md``): position [m] in ``crs``, lon/lat [deg],
+    heading/pitch/roll [deg], 1-sigma position [m] and heading [deg], calibrated ``confidence``,
+    ``score`` (mean squared residual [deg^2], clipped per bin at max(3 noise, 0.5 deg) after
+    refinement) and the top candidates."""
+
+    x: float
+    y: float
+    crs: str
+    lon: float
+    lat: float
+    heading_deg: float
+    pitch_deg: float
+    roll_deg: float
+    position_sigma_m: float
+    heading_sigma_deg: float
+    confidence: float
+    score: float
+    candidates: tuple = ()
+    features: dict = field(default_factory=dict, compare=False)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["candidates"] = [dict(c) for c in self.candidates]
+        d.pop("features")
+        return d
+
+    def to_geojson(self) -> dict:
+        props = self.to_dict()
+        return {"type": "Feature", "geometry": {"type": "Point", "coordinates": [self.lon, self.lat]},
+                "properties": props}
+
+
+@dataclass(frozen=True)
+class HeadingFix:
+    """Scenario 3's answer: heading [deg] (and pitch/roll [deg]) at a given rough position."""
+
+    heading_deg: float
+    heading_sigma_deg: float
+    pitch_deg: float
+    roll_deg: float
+    confidence: float
+    score: float
+    x: float
+    y: float
+    features: dict = field(default_factory=dict, compare=False)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("features")
+        return d
+
+
+def crs_and_lonlat(crs_wkt: str, x: float, y: float):
+    """(short CRS name, lon [deg], lat [deg]) of (x, y) [m] in ``crs_wkt``; NaNs without a CRS."""
+    if not crs_wkt:
+        return "", float("nan"), float("nan")
+    from pyproj import CRS, Transformer
+
+    crs = CRS.from_user_input(crs_wkt)
+    auth = crs.to_authority()
+    name = f"{auth[0]}:{auth[1]}" if auth else crs.name
+    try:
+        t = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+        lon, lat = t.transform(x, y)
+    except Exception:  # noqa: BLE001 - a CRS without a geographic link gives no lon/lat
+        lon = lat = float("nan")
+    return name, float(lon), float(lat)

@@ -1,0 +1,75 @@
+"""The forward model: a world-frame horizon seen from a rover with a given attitude, as a body-frame
+profile, and the residual of a measured profile against it.
+
+Profiles in the ``world`` frame measure azimuth from grid north; in the ``body`` frame from the
+rover's forward axis (levelled with the attitude prior). A world profile of a rover with yaw ``H``
+satisfies ``world[az] = body[az - H]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..camera import r_world_body
+
+
+def body_profile(world_el_deg, yaw_deg, pitch_deg=0.0, roll_deg=0.0, *, n_bins=360,
+                 prior_pitch_deg=0.0, prior_roll_deg=0.0) -> np.ndarray:
+    """The body-frame profile [deg] a camera with this attitude measures, levelled with the prior.
+
+    world_el_deg : (m,) [deg] world-frame horizon, bin k at ``k * 360 / m`` from grid north
+    A world direction ``d`` appears at ``R(0, prior) R(yaw, pitch, roll)^T d`` in the levelled body
+    frame (azimuth from the forward axis); the rotated curve is re-binned by periodic linear
+    interpolation at the ``n_bins`` body bin centres.
+    """
+    w = np.asarray(world_el_deg, np.float64)
+    m = w.size
+    az = np.radians(np.arange(m) * 360.0 / m)
+    el = np.radians(np.nan_to_num(w))
+    ce = np.cos(el)
+    d = np.stack([ce * np.sin(az), ce * np.cos(az), np.sin(el)], axis=1)
+    rot = r_world_body(0.0, prior_pitch_deg, prior_roll_deg) @ r_world_body(yaw_deg, pitch_deg, roll_deg).T
+    b = d @ rot.T
+    azb = np.degrees(np.arctan2(b[:, 0], b[:, 1])) % 360.0
+    elb = np.degrees(np.arctan2(b[:, 2], np.hypot(b[:, 0], b[:, 1])))
+    order = np.argsort(azb)
+    return np.interp(np.arange(n_bins) * 360.0 / n_bins, azb[order], elb[order], period=360.0)
+
+
+def relevel(profile_deg, pitch_deg, roll_deg, *, prior_pitch_deg=0.0, prior_roll_deg=0.0):
+    """Undo an estimated attitude: the profile a level camera (same heading) would measure [deg]."""
+    q = np.asarray(profile_deg, np.float64)
+    n = q.size
+    obs = np.isfinite(q)
+    az = np.radians(np.arange(n) * 360.0 / n)
+    el = np.radians(np.nan_to_num(q))
+    ce = np.cos(el)
+    d = np.stack([ce * np.sin(az), ce * np.cos(az), np.sin(el)], axis=1)
+    rot = r_world_body(0.0, pitch_deg, roll_deg) @ r_world_body(0.0, prior_pitch_deg, prior_roll_deg).T
+    b = d @ rot.T
+    azl = np.degrees(np.arctan2(b[:, 0], b[:, 1])) % 360.0
+    ell = np.degrees(np.arctan2(b[:, 2], np.hypot(b[:, 0], b[:, 1])))
+    order = np.argsort(azl)
+    out = np.interp(np.arange(n) * 360.0 / n, azl[order], ell[order], period=360.0)
+    # A level bin is observed when both neighbours it was interpolated from were.
+    obs_l = np.interp(np.arange(n) * 360.0 / n, azl[order], obs[order].astype(float), period=360.0)
+    return np.where(obs_l > 0.999, out, np.nan)
+
+
+def harmonic_tilt(q, world_shifted):
+    """First guess of (pitch, roll) [deg] from the first harmonic of query - prediction."""
+    n = q.size
+    obs = np.isfinite(q)
+    az = np.radians(np.arange(n) * 360.0 / n)
+    u = np.stack([np.ones(n), np.cos(az), np.sin(az)], axis=1)[obs]
+    c, *_ = np.linalg.lstsq(u, (q - world_shifted)[obs], rcond=None)
+    # Small pitch p lowers what is ahead: -p cos(az); small roll r raises the right side: +r sin(az).
+    return float(-c[1]), float(c[2])
+
+
+def residual_profile(q, world_el_deg, att, *, prior_pitch_deg=0.0, prior_roll_deg=0.0):
+    """Query minus the world horizon seen with attitude ``att`` [deg] (NaN where unobserved)."""
+    pred = body_profile(world_el_deg, att.yaw_deg, att.pitch_deg, att.roll_deg,
+                        n_bins=np.size(q), prior_pitch_deg=prior_pitch_deg,
+                        prior_roll_deg=prior_roll_deg)
+    return np.asarray(q, np.float64) - pred

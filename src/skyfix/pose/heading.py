@@ -1,0 +1,82 @@
+"""Heading-only mode (scenario 3): the position is known roughly, the heading is searched in a
+window about the prior.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..match import prepare_query, score_profiles
+from .attitude import fit_attitude
+from .confidence import confidence_features, confidence_from_features, structureless_cap
+from .fix import HeadingFix
+from .forward import body_profile, harmonic_tilt
+from .scoring import profile_arrays
+
+
+#: Confidence at most, of a heading pinned to the edge of its search window.
+PINNED_HEADING_CONFIDENCE = 0.05
+
+
+def at_window_edge(heading_deg, prior_deg, window_deg, tol_deg=1e-6) -> bool:
+    """Whether ``heading_deg`` [deg] sits on the edge of ``prior_deg +/- window_deg`` [deg]."""
+    d = abs((heading_deg - prior_deg + 180.0) % 360.0 - 180.0)
+    return d >= window_deg - tol_deg
+
+
+def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
+                     camera_height_m=1.5, planet="earth", prior_pitch_deg=0.0, prior_roll_deg=0.0,
+                     render_bins=1440, model=None) -> HeadingFix:
+    """Scenario 3: heading [deg] from a rough position (x, y) [m] and a heading prior [deg].
+
+    The shift search is restricted to ``heading_prior_deg +/- window_deg``; the attitude is then
+    refined by Gauss-Newton with restarts, yaw kept within the window. A heading on the window's
+    edge (the best lies beyond it) gets confidence at most PINNED_HEADING_CONFIDENCE.
+    """
+    from ..horizon import render_horizons
+
+    if not 0 < window_deg <= 180:
+        raise ParameterError(f"window must be in (0, 180] deg, got {window_deg}")
+    if not math.isfinite(heading_prior_deg):
+        raise ParameterError(f"heading prior must be a finite angle [deg], got {heading_prior_deg}")
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise ParameterError(f"rough position must be finite [m], got ({x}, {y})")
+    q, noise = profile_arrays(profile)
+    n = q.size
+    dem.require_inside(np.array([x]), np.array([y]), "rough position")
+    world = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
+                            azimuth_bins=render_bins).elevation_deg[0]
+    world_n = np.nan_to_num(body_profile(world, 0.0, n_bins=n))
+    query = prepare_query(q, True, min_observed=8)
+    s = score_profiles(world_n[None].astype(np.float32), query, all_shifts=True)[0]
+    shifts = np.arange(n) * 360.0 / n
+    dist = np.abs((shifts - heading_prior_deg + 180.0) % 360.0 - 180.0)
+    # A window narrower than half a bin holds no bin centre: take the nearest one as the start.
+    inwin = dist <= max(window_deg, float(dist.min()))
+    k = int(np.flatnonzero(inwin)[np.argmin(s[inwin])])
+    h0 = shifts[k]
+    p0, r0 = harmonic_tilt(q, body_profile(world, h0, n_bins=n))
+    att = fit_attitude(q, world, h0, prior_pitch_deg + p0, prior_roll_deg + r0,
+                       prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg,
+                       yaw_window_deg=window_deg, yaw_center_deg=heading_prior_deg,
+                       restarts_deg=(-2.5, 0.0, 2.5),
+                       accept_deg=2.0 * max(noise, 0.05))
+    # Landscape inside the window: best vs best shift more than 3 deg away.
+    far = inwin & (np.abs((shifts - att.yaw_deg + 180.0) % 360.0 - 180.0) > 3.0)
+    other = float(s[far].min()) if far.any() else np.inf
+    relief = float(np.nanstd(q))
+    feat = confidence_features(float(s[inwin].min()), other, att.robust_rms_deg, noise,
+                               relief, float(np.isfinite(q).mean()),
+                               att.yaw_sigma_deg,
+                               math.hypot(att.pitch_deg - prior_pitch_deg, att.roll_deg - prior_roll_deg))
+    conf = structureless_cap(confidence_from_features(feat, model, "heading"), relief, noise)
+    if window_deg < 180.0 and at_window_edge(att.yaw_deg, heading_prior_deg, window_deg):
+        # Pinned to the window's edge: the fit still improves beyond it, so this is no minimum
+        # and the true heading most likely lies outside the window (truth 20 deg from the prior
+        # with a +-10 deg window gave the edge at confidence 0.9).
+        conf = min(conf, PINNED_HEADING_CONFIDENCE)
+    return HeadingFix(att.yaw_deg % 360.0, att.yaw_sigma_deg, att.pitch_deg, att.roll_deg, conf,
+                      att.rms_deg ** 2, float(x), float(y), feat)

@@ -1,0 +1,192 @@
+"""The position search, :func:`locate`, from a body-frame skyline profile.
+
+Pipeline of :func:`locate`:
+
+1. candidates: the database matcher (:mod:`skyfix.match`) keeps the best K positions in distinct
+   basins; without a database (small prior area) a grid is rendered from the DEM over the prior.
+2. refinement of every kept candidate (the source study's single-candidate pyramid fell into
+   false minima): fresh skylines rendered from the DEM on finer and finer local grids (each level
+   4x finer, 9 x 9 points), scored with the same shift search (tilt harmonic removed), made
+   robust to gross bins (a near rock) by masking the best point's outlier bins and re-scoring
+   (:func:`robust_scores`); a level whose best point is on its edge is re-centred. Candidates
+   are ranked by a per-bin clipped cost (:func:`robust_cost`), not the plain rms.
+3. attitude: yaw, pitch and roll by Gauss-Newton against the rendered horizon, with restarts at
+   -2.5/0/+2.5 deg per axis around the first guess; the query is then re-levelled with the
+   estimated attitude and the finest position levels are redone.
+4. confidence: a logistic model on features of the score landscape (best vs best of another basin,
+   residual vs expected noise, relief of the skyline), fitted on simulated cases by
+   ``scripts/calibrate_confidence.py`` (``skyfix/models/confidence.json``).
+5. retry (database only): a fix with low confidence or a residual far above the noise is searched
+   again with each quarter of the observed skyline left out in turn; the new candidates go
+   through 2-3 and the best on the whole profile wins. A false fragment of skyline can outweigh
+   the rest of the view in the database's sum of squares; one of the partial searches leaves it
+   out.
+
+The forward model (world horizon -> body-frame profile for an attitude) is :func:`body_profile`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ParameterError, SkyfixError
+from ..match import match_database, prepare_query
+from .confidence import (confidence_features, confidence_from_features, position_sigma,
+                         residual_correlation_bins, structureless_cap)
+from .config import PoseConfig
+from .fix import Fix, crs_and_lonlat
+from .refine import inside_dem, prior_grid, refine_candidates
+from .scoring import clipped_costs, profile_arrays, render_points, robust_scores
+
+
+def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg, model, key):
+    """The best refined result, its uncertainties and confidence. results: refined dicts sorted
+    by cost; rest: unrefined candidates (x, y, score, heading); sep [m]: how far another answer
+    must be to count as a rival."""
+    best = results[0]
+    far = lambda x, y: math.hypot(x - best["x"], y - best["y"]) > sep  # noqa: E731
+    other = min([d["cost"] for d in results[1:] if far(d["x"], d["y"])] +
+                [c[2] for c in rest if far(c[0], c[1])] or [np.inf])
+    att = best["att"]
+    obs = np.isfinite(q)
+    psig = position_sigma(best["local"], best["score"], int(obs.sum()), noise,
+                           corr_bins=residual_correlation_bins(best["resid"]))
+    tilt = math.hypot(att.pitch_deg - prior_pitch_deg, att.roll_deg - prior_roll_deg)
+    feat = confidence_features(best["cost"], other, att.robust_rms_deg, noise, relief,
+                               float(obs.mean()), psig, tilt)
+    conf = structureless_cap(confidence_from_features(feat, model, key), relief, noise)
+    return dict(x=best["x"], y=best["y"], heading=att.yaw_deg, pitch=att.pitch_deg,
+                roll=att.roll_deg, cost=best["cost"], psig=psig, hsig=att.yaw_sigma_deg,
+                feat=feat, conf=conf)
+
+
+def _segment_candidates(db, q, config, known, *, prior_xy=None, prior_radius_m=None):
+    """Database candidates (x, y, score, heading) found with each of ``config.retry_segments``
+    contiguous parts of the observed skyline left out in turn, farther than the tolerance from
+    every position in ``known`` and from each other (the first ``retry_per_segment`` of each
+    search)."""
+    obs = np.flatnonzero(np.isfinite(q))
+    out = []
+    for part in np.array_split(obs, max(1, config.retry_segments)):
+        if part.size == 0 or obs.size - part.size < config.match.min_observed:
+            continue
+        qk = q.copy()
+        qk[part] = np.nan
+        m = match_database(db, qk, config.match, prior_xy=prior_xy, prior_radius_m=prior_radius_m)
+        for c in m.candidates[: config.retry_per_segment]:
+            if all(math.hypot(c.x - x, c.y - y) > config.tolerance_m for x, y in known):
+                out.append((c.x, c.y, c.score, c.heading_deg))
+                known = known + [(c.x, c.y)]
+    return out
+
+
+def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
+           prior_pitch_deg: float = 0.0, prior_roll_deg: float = 0.0,
+           camera_height_m: float | None = None, planet=None, config: PoseConfig = PoseConfig(),
+           model: dict | None = None, return_match: bool = False):
+    """Position, heading and attitude from a body-frame profile.
+
+    profile : :class:`skyfix.formats.Profile` (frame ``body``, levelled with the attitude prior)
+    db : an opened skyline database (or anything with its read API); None for a small prior area
+    dem : the DEM the database was built from; needed to refine (and without a database)
+    prior_xy, prior_radius_m : [m] search disc (required without a database)
+    prior_pitch_deg, prior_roll_deg : [deg] the attitude prior the profile was levelled with
+    Returns a :class:`Fix` (and the :class:`skyfix.match.MatchResult` with ``return_match``).
+    """
+    if getattr(profile, "frame", "body") not in ("body", None):
+        raise ParameterError(f"locate needs a body-frame profile, got frame '{profile.frame}'")
+    q, noise = profile_arrays(profile)
+    n = q.size
+    if db is None and dem is None:
+        raise ParameterError("locate needs a skyline database (--db) or a DEM with a prior area")
+    if db is None and (prior_xy is None or prior_radius_m is None):
+        raise ParameterError("without a database, give a prior position and radius "
+                             "(--prior-x, --prior-y, --prior-radius-m) and a DEM")
+    if prior_xy is not None and not all(math.isfinite(float(v)) for v in prior_xy):
+        raise ParameterError(f"prior position must be finite [m], got {tuple(prior_xy)}")
+    if prior_radius_m is not None and not (math.isfinite(prior_radius_m) and prior_radius_m > 0):
+        raise ParameterError(f"prior radius must be a finite number of metres > 0, got {prior_radius_m}")
+    if camera_height_m is None:
+        camera_height_m = float(getattr(db, "camera_height_m", None) or
+                                profile.meta.get("camera_height_m", 1.5))
+    if planet is None:
+        planet = getattr(db, "planet", None) or "earth"
+        if isinstance(planet, dict):
+            planet = planet.get("name") or planet.get("radius_m") or "earth"
+    workers = config.match.workers
+    mres = None
+    if db is not None:
+        mres = match_database(db, q, config.match, prior_xy=prior_xy, prior_radius_m=prior_radius_m)
+        cands = [(c.x, c.y, c.score, c.heading_deg) for c in mres.candidates]
+        step0 = float(db.spacing_m) / 4.0
+        crs_wkt = getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else "")
+    else:
+        step = config.grid_step_m
+        gx, gy = prior_grid(dem, prior_xy, float(prior_radius_m), step)
+        ok = inside_dem(dem, gx, gy, 0.0)
+        if not ok.any():
+            raise ParameterError("the prior area lies outside the DEM")
+        gx, gy = gx[ok], gy[ok]
+        prepare_query(q, config.match.remove_tilt, config.match.min_observed)  # validates the view
+        pts = render_points(dem, gx, gy, camera_height_m=camera_height_m, planet=planet, n_bins=n)
+        _, sh, _ = robust_scores(pts, q, remove_tilt=config.match.remove_tilt, workers=workers)
+        # Candidates by the clipped cost: rocks covering a quarter of the view (OCCL) named the
+        # wrong outlier bins at the sum-of-squares optimum and kept the true basin out of the
+        # refined few; clipped, each rock bin costs the same everywhere.
+        sc = clipped_costs(pts, q, sh, config.match.remove_tilt)
+        order = np.argsort(sc)
+        cands = []
+        for i in order:
+            if all(math.hypot(gx[i] - c[0], gy[i] - c[1]) > 2.5 * step for c in cands):
+                cands.append((float(gx[i]), float(gy[i]), float(sc[i]), float(sh[i]) * 360.0 / n))
+            if len(cands) >= config.match.top_k:
+                break
+        step0 = step / 4.0
+        crs_wkt = dem.crs_wkt
+    if not cands:
+        raise SkyfixError("no candidate position found: the database holds no usable skyline")
+    relief = float(np.nanstd(q))
+    if dem is not None:
+        kw = dict(camera_height_m=camera_height_m, planet=planet, prior_pitch_deg=prior_pitch_deg,
+                  prior_roll_deg=prior_roll_deg, noise=noise)
+        results = refine_candidates(dem, q, cands[: config.refine_candidates], step0, config, **kw)
+        rest = list(cands[config.refine_candidates:])
+        # "Another basin" is another answer beyond the tolerance: refined candidates often
+        # converge onto the best one, and comparing with a copy of itself said nothing.
+        sep = config.tolerance_m if db is not None else 1.0
+        # Without a database the answer is judged at scenario 2's tolerance (1 m), not 5 m.
+        out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg,
+                      model, "locate" if db is not None else "locate_prior")
+        if db is not None and (out["conf"] < config.retry_below or
+                               out["feat"]["log_rms_over_noise"] > math.log(config.retry_rms_ratio)):
+            known = [(d["x"], d["y"]) for d in results] + [(c[0], c[1]) for c in rest]
+            extra = _segment_candidates(db, q, config, known, prior_xy=prior_xy,
+                                        prior_radius_m=prior_radius_m)
+            if extra:
+                results = sorted(results + refine_candidates(dem, q, extra, step0, config, **kw),
+                                 key=lambda d: d["cost"])
+                out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg,
+                              prior_roll_deg, model, "locate")
+        fx, fy, heading, pitch, roll = out["x"], out["y"], out["heading"], out["pitch"], out["roll"]
+        best_s, psig, hsig, feat, conf = out["cost"], out["psig"], out["hsig"], out["feat"], out["conf"]
+        cand_out = [{"x": d["x"], "y": d["y"], "heading_deg": d["heading"],
+                     "score": d["cost"]} for d in results]
+        cand_out += [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]} for c in rest]
+    else:
+        cx, cy, cs, ch = cands[0]
+        other = cands[1][2] if len(cands) > 1 else np.inf
+        best_s = cs
+        fx, fy, heading, pitch, roll = cx, cy, ch, prior_pitch_deg, prior_roll_deg
+        psig = float(db.spacing_m) / math.sqrt(6)
+        hsig, rms = 360.0 / n, math.sqrt(cs)
+        tilt = 0.0
+        cand_out = [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]} for c in cands]
+        feat = confidence_features(best_s, other, rms, noise, relief, float(np.isfinite(q).mean()),
+                                   psig, tilt)
+        conf = structureless_cap(confidence_from_features(feat, model, "locate"), relief, noise)
+    crs, lon, lat = crs_and_lonlat(crs_wkt, fx, fy)
+    fix = Fix(float(fx), float(fy), crs, lon, lat, float(heading) % 360.0, float(pitch),
+              float(roll), float(psig), float(hsig), conf, float(best_s), tuple(cand_out), feat)
+    return (fix, mres) if return_match else fix

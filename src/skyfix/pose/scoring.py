@@ -1,0 +1,141 @@
+"""Scoring candidate positions against the query profile on skylines rendered from the DEM, made
+robust to gross bins (a near rock, a false fragment): outlier masking and a per-bin clipped
+cost.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..match import prepare_query, score_profiles
+
+
+def profile_arrays(profile):
+    """(elevation [deg] as float64 with NaN = unobserved, the profile's typical noise [deg]: the
+    median sigma, 0.2 when it has none)."""
+    el = np.asarray(profile.elevation_deg, np.float64)
+    sig = profile.sigma_deg
+    noise = float(np.nanmedian(sig)) if sig is not None and np.isfinite(sig).any() else 0.2
+    return el, noise
+
+
+def render_points(dem, xs, ys, *, camera_height_m, planet, n_bins):
+    """(N, n_bins) float32 world-frame skylines [deg] at (xs, ys) [m], bin-averaged."""
+    from ..horizon import render_horizons
+
+    # A measured bin averages the skyline over its width: render 5 sub-bins per bin and average,
+    # or sharp ridges bias the fine position (point samples vs bin means).
+    k = 5
+    hb = render_horizons(dem, xs, ys, camera_height_m=camera_height_m, planet=planet,
+                         azimuth_bins=n_bins * k)
+    p = np.nan_to_num(hb.elevation_deg, nan=0.0)
+    return np.roll(p, k // 2, axis=1).reshape(p.shape[0], n_bins, k).mean(axis=2).astype(np.float32)
+
+
+def outlier_bins(q, p_world, shift_bins, remove_tilt=True, floor_deg=0.5, k_sigma=3.5,
+                 above_floor_deg=0.15, above_k_sigma=2.5):
+    """Observed bins of the query [deg] that a prediction cannot explain (a near rock, a glint).
+
+    p_world : (n,) [deg] world skyline; shift_bins : best shift [bins] (``q[j] ~ p[j + shift]``).
+    The residual, after removing the offset (and tilt harmonic), is compared with
+    ``max(k_sigma * 1.4826 MAD, floor_deg)``: Gaussian detection noise stays in, gross errors
+    (>= 1 deg) go out. Bins *above* the prediction go out sooner, beyond
+    ``max(above_k_sigma * 1.4826 MAD, above_floor_deg)``: something near the camera (a rock,
+    the rover's own hardware) can only raise the skyline, and small rocks a few tenths of a
+    degree high otherwise stayed in and pulled the position metres off.
+    Returns a bool (n,) mask, True = outlier.
+    """
+    from ..match import harmonic_basis
+
+    q = np.asarray(q, np.float64)
+    n = q.size
+    obs = np.isfinite(q)
+    j = np.arange(n, dtype=np.float64)
+    pred = np.interp((j + float(shift_bins)) % n, np.arange(n + 1),
+                     np.append(np.asarray(p_world, np.float64), float(p_world[0])))
+    u = harmonic_basis(n, remove_tilt)[obs]
+    r = q[obs] - pred[obs]
+    coef, *_ = np.linalg.lstsq(u, r, rcond=None)
+    r = r - u @ coef
+    mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    thr = max(k_sigma * mad, floor_deg)
+    thr_above = min(max(above_k_sigma * mad, above_floor_deg), thr)
+    out = np.zeros(n, bool)
+    out[np.flatnonzero(obs)[(r > thr_above) | (r < -thr)]] = True
+    return out
+
+
+def clipped_costs(p, q, shift_bins, remove_tilt=True, clip_deg=0.5):
+    """Per point, the mean of ``min(r^2, clip_deg^2)`` [deg^2] over the query's observed bins,
+    r the residual at the point's shift after removing the offset (and tilt harmonic) fitted by
+    least squares to the bins within ``clip_deg`` of the median residual.
+
+    p : (N, n) [deg] world skylines; q : (n,) [deg] query (NaN unobserved); shift_bins : (N,)
+    (``q[j] ~ p[j + shift]``)."""
+    from ..match import harmonic_basis
+
+    p = np.asarray(p, np.float64)
+    q = np.asarray(q, np.float64)
+    N, n = p.shape
+    obs = np.flatnonzero(np.isfinite(q))
+    grid = np.arange(n + 1, dtype=np.float64)
+    pred = np.empty((N, obs.size))
+    for k in range(N):
+        pred[k] = np.interp((obs + float(shift_bins[k])) % n, grid, np.append(p[k], p[k, 0]))
+    r = q[obs][None, :] - pred
+    r -= np.median(r, axis=1, keepdims=True)
+    u = harmonic_basis(n, remove_tilt)[obs]
+    w = (np.abs(r) < clip_deg).astype(np.float64)
+    for k in range(N):  # one weighted refit on the inliers: offset and tilt harmonic
+        uw = u * w[k][:, None]
+        coef, *_ = np.linalg.lstsq(uw.T @ u, uw.T @ r[k], rcond=None)
+        r[k] -= u @ coef
+    return np.mean(np.minimum(r * r, clip_deg * clip_deg), axis=1)
+
+
+def robust_scores(p, q, *, remove_tilt=True, workers=2, rounds=2):
+    """Shift search scores of skylines ``p`` (N, n) [deg] against ``q`` with outlier bins dropped.
+
+    Plain sums of squares let a few gross bins (a 5 deg outlier weighs as much as 600 bins of
+    0.2 deg noise) choose the position. The best point's residuals flag outlier bins
+    (:func:`outlier_bins`); all points are re-scored with those bins masked (the same mask for
+    every point, so scores stay comparable), ``rounds`` times. Rendering is not repeated.
+    Returns (score [deg^2] (N,), shift [bins] (N,), the masked query (n,) [deg]).
+    """
+    q = np.asarray(q, np.float64)
+    n_obs = int(np.isfinite(q).sum())
+    qm = q
+    sc, sh = score_profiles(p, prepare_query(qm, remove_tilt, min_observed=8), workers)
+    for _ in range(rounds):
+        # The reference point whose residuals name the outliers: the lowest clipped cost, not
+        # the lowest sum of squares -- near rocks covering 10 % of the view pull the plain
+        # optimum tens of metres off, and its residuals then flag the wrong bins.
+        i = int(np.argmin(clipped_costs(p, q, sh, remove_tilt)))
+        bad = outlier_bins(q, p[i], sh[i], remove_tilt)
+        # Never drop so many bins that the position information goes with them.
+        if not bad.any() or n_obs - bad.sum() < max(20, n_obs // 2):
+            break
+        q_new = np.where(bad, np.nan, q)
+        if np.array_equal(np.isfinite(q_new), np.isfinite(qm)):
+            break
+        qm = q_new
+        sc, sh = score_profiles(p, prepare_query(qm, remove_tilt, min_observed=8), workers)
+    return sc, sh, qm
+
+
+def score_points(dem, xs, ys, q, *, camera_height_m, planet, n_bins, remove_tilt=True, workers=2):
+    """(scores [deg^2], shifts [bins]) of skylines rendered at (xs, ys) [m] against the query
+    ``q`` [deg], by :func:`robust_scores`."""
+    p = render_points(dem, xs, ys, camera_height_m=camera_height_m, planet=planet, n_bins=n_bins)
+    sc, sh, _ = robust_scores(p, q, remove_tilt=remove_tilt, workers=workers)
+    return sc, sh
+
+
+def robust_cost(resid, noise_deg):
+    """Clipped mean squared residual [deg^2] of a :func:`residual_profile`, offset removed:
+    each bin counts at most ``(max(3 noise, 0.5 deg))^2``, so a few gross bins (a near rock)
+    cannot out-vote the rest when candidates are ranked."""
+    r = resid[np.isfinite(resid)]
+    r = r - np.median(r)
+    c = max(3.0 * noise_deg, 0.5)
+    return float(np.mean(np.minimum(r * r, c * c)))
