@@ -1,0 +1,44 @@
+"""Stage 3: the skyline database, the ground segment's product (the file the rover carries).
+
+A zarr v3 store holding, for every position of a regular grid over a search area, the skyline
+the DEM predicts there.
+
+Arrays (``dimension_names`` in brackets)
+    ``elevation`` int16 (ny, nx, bins) [y, x, azimuth]: skyline elevation = raw * ``scale_deg``
+    (0.01 deg, rounded to nearest, so the quantisation adds at most 0.005 deg); ``-32768`` where
+    the ray saw no terrain. Azimuth bin k is centred on ``k * 360 / bins`` deg clockwise from grid
+    north. ``ground_z`` float32 (ny, nx) [m] DEM height under each position. ``min_ray_m`` float32
+    (ny, nx) [m] shortest ray of the position; ``edge_bins`` int16 (ny, nx) number of bins whose
+    ray stopped at the DEM edge before ``max_distance_m`` (a skyline may lie beyond the DEM there).
+    ``x`` (nx,), ``y`` (ny,), ``azimuth`` (bins,) coordinates [m, m, deg].
+
+Blocks
+    The grid is cut into blocks of ``block`` x ``block`` positions (64 x 64 by default), one zarr
+    chunk of every array per block. A block is one build task: it renders its positions, writes
+    its chunks, then (atomically, after the data) a marker ``_skyfix/blocks/rRRRR_cCCCC.json``
+    holding the SHA-256 of the block's decoded arrays. A block without a marker is not built, so a
+    build killed at any moment resumes by redoing exactly the blocks without markers, and
+    :func:`verify_database` can tell an intact block from a corrupted one.
+
+Files: :mod:`.layout` (format constants, the grid, quantisation), :mod:`.executors` (where blocks
+run), :mod:`.integrity` (the state of a store on disk), :mod:`.build`, :mod:`.store` (reading),
+:mod:`.verify` (checks and ``skyfix info``).
+"""
+
+from .build import (BuildResult, build_database, build_params, check_build_size, dir_size,
+                    estimate_build_bytes, render_block)
+from .executors import InProcessExecutor, check_executor_options, default_workers, make_executor
+from .integrity import done_blocks
+from .layout import (BLOCK, DATA_ARRAYS, FORMAT, FORMAT_VERSION, MARKER_DIR, MAX_BUILD_BYTES,
+                     MAX_POSITIONS, META_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG, Grid, dequantise,
+                     quantise)
+from .store import Block, SkylineDatabase, open_database
+from .verify import VerifyReport, describe, verify_database
+
+__all__ = ["BLOCK", "DATA_ARRAYS", "FORMAT", "FORMAT_VERSION", "MARKER_DIR", "MAX_BUILD_BYTES",
+           "MAX_POSITIONS", "META_DIR", "MISSING", "SCALE_DEG", "SKIP_TOL_DEG", "Block",
+           "BuildResult", "Grid", "InProcessExecutor", "SkylineDatabase", "VerifyReport",
+           "build_database", "build_params", "check_build_size", "check_executor_options",
+           "default_workers", "describe", "dequantise", "dir_size", "done_blocks",
+           "estimate_build_bytes", "make_executor", "open_database", "quantise", "render_block",
+           "verify_database"]

@@ -1,0 +1,100 @@
+"""Where the build's blocks run: in this process (tests, one worker), an embedded Dask
+``LocalCluster`` (the default), or an existing Dask cluster by address; and their option checks.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from concurrent.futures import Executor, Future
+from contextlib import contextmanager
+
+from ..errors import ParameterError
+
+
+log = logging.getLogger(__name__)
+
+
+class InProcessExecutor(Executor):
+    """Runs each task at once in the calling process (``--workers 0``); numba uses all its threads."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        f = Future()
+        try:
+            f.set_result(fn(*args, **kwargs))
+        except Exception as e:  # delivered through the future, like any executor
+            f.set_exception(e)
+        return f
+
+
+def is_whole_at_least_0(v) -> bool:
+    """A count given by a user: a whole number >= 0 (3.0 counts, True and "3" do not)."""
+    try:
+        return not isinstance(v, bool) and int(v) == v and v >= 0
+    except (TypeError, ValueError, OverflowError):
+        return False
+
+
+def check_executor_options(workers: int | None, scheduler: str | None) -> None:
+    """Refuse bad ``workers`` / ``scheduler`` values (before a build touches any file)."""
+    if workers is not None and scheduler is not None:
+        raise ParameterError("give either --workers or --scheduler, not both")
+    if workers is not None:
+        if not is_whole_at_least_0(workers):
+            raise ParameterError(f"--workers must be a whole number >= 0 (0: in this process), got {workers}")
+    if scheduler is not None:
+        why = "not a string"
+        if isinstance(scheduler, str):
+            from distributed.comm import get_address_host_port
+
+            # Parsed here, not left to Client(): a Client that fails on a malformed address (an
+            # unknown scheme) hangs for 40 s at exit closing itself, and prints a traceback.
+            try:
+                get_address_host_port(scheduler)
+                return
+            except ValueError as e:  # "missing port number", "unknown address scheme"
+                why = str(e)
+        raise ParameterError(f"--scheduler {scheduler!r} is not a Dask scheduler address ({why}): give "
+                             "tcp://HOST:PORT")
+
+
+def default_workers() -> int:
+    """Worker processes for a build by default: the cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+@contextmanager
+def make_executor(workers: int | None = None, scheduler: str | None = None):
+    """Yield ``(executor, slots, single_thread)`` for a build.
+
+    workers : 0 = in the calling process; N = an embedded Dask LocalCluster of N single-threaded
+        worker processes (default: one per core)
+    scheduler : address of an existing Dask scheduler (``tcp://HOST:PORT``); its workers must see
+        the DEM and the output at the same paths and import skyfix
+    """
+    check_executor_options(workers, scheduler)
+    if scheduler is None and workers == 0:
+        yield InProcessExecutor(), 1, False
+        return
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, ValueError) as e:  # refused, unknown host, timed out
+            raise ParameterError(f"cannot reach the Dask scheduler at {scheduler}: {e} (is it running, "
+                                 "and is the address tcp://HOST:PORT right?)") from None
+        with client:
+            slots = max(1, sum(client.nthreads().values()))
+            yield client.get_executor(pure=False), slots, True
+        return
+    n = default_workers() if workers is None else int(workers)
+    dlog = logging.getLogger("distributed")
+    if not log.isEnabledFor(logging.INFO):  # the cluster's start/stop chatter only with -v
+        dlog.setLevel(logging.ERROR)
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        yield client.get_executor(pure=False), n, True

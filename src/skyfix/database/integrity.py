@@ -1,0 +1,214 @@
+"""What state a store on disk is in: its root metadata and attributes checked by kind, the arrays
+against the grid, which blocks are built and intact (a marker and every chunk file present), and
+the clean-up of partial writes. Every read and every resume starts here, so that a damaged or
+foreign folder is refused by name rather than read wrong.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DatabaseError
+from .layout import DATA_ARRAYS, FORMAT, Grid, MARKER_DIR, array_sha256, marker_name
+
+
+def root_state(path: Path) -> tuple[str, dict | str | None]:
+    """What ``path/zarr.json`` says: ``("ok", attrs)`` for a skyfix database, ``("damaged", why)``
+    for a zarr.json that exists but cannot be read (or is gone from beside our block markers),
+    ``("none", None)`` otherwise."""
+    f = path / "zarr.json"
+    if not f.is_file():
+        if (path / MARKER_DIR).is_dir():  # our bookkeeping is there: a database that lost its root
+            return "damaged", f"{f} is missing"
+        return "none", None
+    try:
+        meta = json.loads(f.read_text())
+    except (OSError, ValueError) as e:  # truncated, empty, binary garbage, unreadable
+        why = "it is empty" if f.stat().st_size == 0 else f"{type(e).__name__}: {e}"
+        return "damaged", f"{f} cannot be read ({why})"
+    if not isinstance(meta, dict):
+        return "damaged", f"{f} holds a JSON {type(meta).__name__}, not an object"
+    attrs = meta.get("attributes")
+    if not isinstance(attrs, dict) or attrs.get("format") != FORMAT:
+        return "none", None
+    return "ok", attrs
+
+
+# What each recorded attribute must be: (dotted key, kind). Checked when a database is opened, so
+# that a hand-edited or corrupted zarr.json is named instead of failing deep in a computation.
+_ATTR_KINDS = (
+    ("grid", "object"), ("grid.x0", "number"), ("grid.y0", "number"), ("grid.spacing_m", "positive"),
+    ("grid.shape", "pair"), ("grid.block_shape", "pair"), ("azimuth_bins", "count"),
+    ("camera_height_m", "number"), ("max_distance_m", "number or null"), ("planet", "object"),
+    ("planet.name", "text"), ("planet.radius_m", "positive"), ("planet.refraction_k", "number"),
+    ("elevation", "object"), ("elevation.scale_deg", "positive"), ("elevation.missing", "integer"),
+    ("dem", "object"), ("dem.sha256", "text"), ("dem.source", "text"), ("crs_wkt", "text"),
+    ("build", "object"),
+)
+
+
+_KIND_WORDS = {"object": "an object", "number": "a number", "positive": "a number > 0",
+               "count": "a whole number > 0", "integer": "a whole number",
+               "pair": "two whole numbers > 0", "text": "a string", "number or null": "a number or null"}
+
+
+def is_int(v) -> bool:
+    """True for a JSON integer (a bool is not one)."""
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _attr_ok(kind: str, v) -> bool:
+    if kind == "object":
+        return isinstance(v, dict)
+    if kind == "number":
+        return _is_number(v)
+    if kind == "positive":
+        return _is_number(v) and v > 0
+    if kind == "number or null":
+        return v is None or _is_number(v)
+    if kind == "count":
+        return is_int(v) and v > 0
+    if kind == "integer":
+        return is_int(v)
+    if kind == "pair":
+        return isinstance(v, list) and len(v) == 2 and all(is_int(x) and x > 0 for x in v)
+    return isinstance(v, str)
+
+
+def damaged(path, what: str) -> DatabaseError:
+    """The error for a store whose metadata was edited or corrupted, saying how to rebuild it."""
+    return DatabaseError(f"{path}: database metadata damaged: {what} (its zarr.json was edited or "
+                         "corrupted): rebuild it with `skyfix build-db ... --overwrite`")
+
+
+def check_attrs(path: Path, attrs: dict) -> None:
+    """Raise a DatabaseError naming the first recorded attribute of the wrong type."""
+    for key, kind in _ATTR_KINDS:
+        v = attrs
+        for part in key.split("."):
+            if part not in v:
+                raise damaged(path, f"{key} is missing")
+            v = v[part]
+        if not _attr_ok(kind, v):
+            raise damaged(path, f"{key} must be {_KIND_WORDS[kind]}, got {v!r}")
+
+
+def check_arrays(path: Path, g, attrs: dict) -> None:
+    """The arrays' own metadata must agree with the recorded grid (one chunk per block)."""
+    ny, nx = attrs["grid"]["shape"]
+    b = attrs["grid"]["block_shape"][0]
+    bins = attrs["azimuth_bins"]
+    for name in DATA_ARRAYS:
+        a = g[name]
+        want = (ny, nx, bins) if name == "elevation" else (ny, nx)
+        chunks = (b, b, bins) if name == "elevation" else (b, b)
+        if tuple(a.shape) != want or tuple(a.chunks) != chunks:
+            raise damaged(path, f"array {name} has shape {tuple(a.shape)} in chunks {tuple(a.chunks)}, "
+                                 f"but grid.shape {[ny, nx]}, grid.block_shape and azimuth_bins {bins} "
+                                 f"say {want} in chunks {chunks}")
+
+
+def chunk_keys(root: Path) -> set[str]:
+    """Every file under ``root`` as a '/'-separated path relative to it (one listing, no reads)."""
+    have = set()
+    for d, _, files in os.walk(root):
+        rel = os.path.relpath(d, root).replace(os.sep, "/")
+        pre = "" if rel == "." else rel + "/"
+        have.update(pre + f for f in files)
+    return have
+
+
+def absent_data(path: Path, g, grid: Grid, done) -> dict:
+    """Built blocks (with a marker) whose chunk file of some array is gone: {(br, bc): [names]}.
+
+    zarr reads an absent chunk as the fill value without a word, so a deleted chunk file would
+    read as a block of "no terrain" skylines and NaN heights. One directory listing per array at
+    open time finds them (milliseconds for a 7 x 7 km database), so a read costs one set lookup.
+    """
+    blocks = sorted(set(done) & set(grid.blocks()))
+    absent: dict = {}
+    for name in DATA_ARRAYS:
+        a = g[name]
+        have = chunk_keys(path / name)
+        enc = a.metadata.chunk_key_encoding
+        tail = (0,) * (a.ndim - 2)
+        for br, bc in blocks:
+            if enc.encode_chunk_key((br, bc) + tail) not in have:
+                absent.setdefault((br, bc), []).append(name)
+    # zarr does not write a chunk that is all fill value: legitimate if the marker's checksum says
+    # the block really was all fill (only conceivable for elevation: every ray without terrain).
+    for (br, bc), names in list(absent.items()):
+        try:
+            sha = json.loads((path / MARKER_DIR / marker_name(br, bc)).read_text())["sha256"]
+        except (OSError, ValueError, KeyError, TypeError):
+            sha = {}
+        rs, cs = grid.block_slices(br, bc)
+        gone = []
+        for name in names:
+            a = g[name]
+            fill = np.full((rs.stop - rs.start, cs.stop - cs.start) + tuple(a.shape[2:]), a.fill_value,
+                           a.dtype)
+            if not isinstance(sha, dict) or sha.get(name) != array_sha256(fill):
+                gone.append(name)
+        if gone:
+            absent[(br, bc)] = gone
+        else:
+            del absent[(br, bc)]
+    return absent
+
+
+def intact_blocks(path: Path, grid: Grid) -> set[tuple[int, int]]:
+    """Blocks with a marker and every chunk file: a resume redoes the others."""
+    import zarr
+
+    done = done_blocks(path)
+    try:
+        g = zarr.open_group(str(path), mode="r")
+        absent = absent_data(path, g, grid, done)
+    except Exception:  # a store too broken to list: the build below will say so, or redo it all
+        return done
+    return done - set(absent)
+
+
+def data_missing_message(path, absent: dict) -> str:
+    """What to tell a user when built blocks lack chunk files (``absent``: block -> array names)."""
+    (br, bc), names = min(absent.items())
+    more = f" ({len(absent)} blocks in all)" if len(absent) > 1 else ""
+    return (f"{path}: block ({br}, {bc}) data missing (no chunk file for {', '.join(names)}){more}: "
+            f"run `skyfix verify {path}`, then rebuild (the same build-db command resumes and redoes "
+            "such blocks)")
+
+
+def done_blocks(path) -> set[tuple[int, int]]:
+    """Blocks (br, bc) whose marker exists, i.e. whose data were fully written."""
+    d = Path(path) / MARKER_DIR
+    out = set()
+    if d.is_dir():
+        for p in d.iterdir():
+            n = p.name
+            if n.startswith("r") and n.endswith(".json") and "_c" in n:
+                try:
+                    out.add((int(n[1:5]), int(n[7:11])))
+                except ValueError:
+                    pass
+    return out
+
+
+def clean_partials(path: Path) -> int:
+    """Remove temporary files a killed build left behind (zarr's ``*.partial``, our ``.name.*``)."""
+    n = 0
+    for d, _, files in os.walk(path):
+        for f in files:
+            if f.endswith(".partial") or f.startswith("."):
+                os.unlink(os.path.join(d, f))
+                n += 1
+    return n

@@ -1,0 +1,314 @@
+"""Reading a store: :func:`open_database` (checked first by :mod:`.integrity`) gives a read-only
+:class:`SkylineDatabase` that streams :class:`Block` s of positions to the matcher.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .. import __version__
+from ..errors import DatabaseError, ParameterError
+from ..planets import Planet
+from .integrity import (absent_data, check_arrays, check_attrs, damaged, data_missing_message,
+                        done_blocks, is_int, root_state)
+from .layout import (DATA_ARRAYS, FORMAT, FORMAT_VERSION, Grid, MARKER_DIR, MISSING, SCALE_DEG,
+                     dequantise, marker_name)
+
+
+# --- reading ---------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Block:
+    """One block of positions as stored.
+
+    row0, col0 : origin in the position grid; rows, cols : block shape
+    x, y : float64 (n,) [m] of each position, row-major within the block (n = rows * cols)
+    elevation : int16 (n, bins) raw (multiply by ``scale_deg``; ``missing`` = no terrain)
+    ground_z_m : float32 (n,) [m]; min_ray_m : float32 (n,) [m]; edge_bins : int16 (n,)
+    (the last three None where a reader or an in-memory store does not provide them)
+    """
+
+    row0: int
+    col0: int
+    rows: int
+    cols: int
+    x: np.ndarray
+    y: np.ndarray
+    elevation: np.ndarray
+    ground_z_m: np.ndarray | None = None
+    min_ray_m: np.ndarray | None = None
+    edge_bins: np.ndarray | None = None
+    scale_deg: float = SCALE_DEG
+    missing: int = MISSING
+
+    @property
+    def elevation_deg(self) -> np.ndarray:
+        """float32 (n, bins) [deg], NaN where missing."""
+        return dequantise(self.elevation, self.scale_deg, self.missing)
+
+
+class SkylineDatabase:
+    """A skyline database opened read-only (see :func:`open_database`).
+
+    Memory stays bounded: :meth:`iter_blocks` holds one block at a time, :meth:`profiles_at`
+    reads only the chunks holding the positions asked for.
+    """
+
+    def __init__(self, path: Path, group, attrs: dict, done: set, absent: dict | None = None):
+        self.path = path
+        self._g = group
+        self._attrs = attrs
+        self._done = done
+        self._absent = absent or {}  # built blocks whose chunk files are gone (see absent_data)
+        self._arrays: dict = {}
+        gr = attrs["grid"]
+        self.grid = Grid(float(gr["x0"]), float(gr["y0"]), float(gr["spacing_m"]), int(gr["shape"][0]),
+                         int(gr["shape"][1]), int(gr["block_shape"][0]))
+
+    # --- metadata --------------------------------------------------------------------------------
+    @property
+    def attrs(self) -> dict:
+        """Every root attribute (a copy)."""
+        return json.loads(json.dumps(self._attrs))
+
+    @property
+    def crs_wkt(self) -> str:
+        return self._attrs["crs_wkt"]
+
+    @property
+    def crs_name(self) -> str:
+        return self._attrs.get("crs_name", "")
+
+    @property
+    def spacing_m(self) -> float:
+        return self.grid.spacing_m
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(ny, nx) positions."""
+        return self.grid.shape
+
+    @property
+    def x_coords(self) -> np.ndarray:
+        """(nx,) [m] position x, west to east."""
+        return self.grid.x_coords
+
+    @property
+    def y_coords(self) -> np.ndarray:
+        """(ny,) [m] position y, north to south."""
+        return self.grid.y_coords
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) [m] of the position centres."""
+        xs, ys = self.x_coords, self.y_coords
+        return (float(xs[0]), float(ys[-1]), float(xs[-1]), float(ys[0]))
+
+    @property
+    def azimuth_bins(self) -> int:
+        return int(self._attrs["azimuth_bins"])
+
+    @property
+    def azimuth_deg(self) -> np.ndarray:
+        """(bins,) [deg] bin centres ``k * 360 / bins``."""
+        return np.arange(self.azimuth_bins) * (360.0 / self.azimuth_bins)
+
+    @property
+    def camera_height_m(self) -> float:
+        return float(self._attrs["camera_height_m"])
+
+    @property
+    def planet(self) -> Planet:
+        p = self._attrs["planet"]
+        return Planet(p["name"], float(p["radius_m"]), float(p["refraction_k"]))
+
+    @property
+    def max_distance_m(self) -> float | None:
+        """[m] ray length limit of the build, None when rays ran to the DEM edge."""
+        m = self._attrs["max_distance_m"]
+        return None if m is None else float(m)
+
+    @property
+    def scale_deg(self) -> float:
+        return float(self._attrs["elevation"]["scale_deg"])
+
+    @property
+    def missing(self) -> int:
+        return int(self._attrs["elevation"]["missing"])
+
+    @property
+    def dem_sha256(self) -> str:
+        return self._attrs["dem"]["sha256"]
+
+    @property
+    def n_blocks(self) -> int:
+        return len(self.grid.blocks())
+
+    @property
+    def blocks_done(self) -> int:
+        return len(self._done & set(self.grid.blocks()))
+
+    @property
+    def blocks_data_missing(self) -> list[tuple[int, int]]:
+        """Built blocks (marker present) whose chunk files are gone: unreadable until rebuilt."""
+        return sorted(self._absent)
+
+    @property
+    def is_complete(self) -> bool:
+        """Every block built, and every built block's data there."""
+        return self.blocks_done == self.n_blocks and not self._absent
+
+    # --- positions -------------------------------------------------------------------------------
+    def index_of(self, x, y):
+        """(row, col) int64 of the nearest grid position to (x, y) [m] (no bounds check)."""
+        col = np.rint((np.asarray(x, np.float64) - self.grid.x0) / self.grid.spacing_m).astype(np.int64)
+        row = np.rint((self.grid.y0 - np.asarray(y, np.float64)) / self.grid.spacing_m).astype(np.int64)
+        return row, col
+
+    def xy_of(self, row, col):
+        """(x, y) [m] of grid position (row, col)."""
+        return (self.grid.x0 + np.asarray(col, np.float64) * self.grid.spacing_m,
+                self.grid.y0 - np.asarray(row, np.float64) * self.grid.spacing_m)
+
+    def _rows_cols(self, x, y):
+        x = np.atleast_1d(np.asarray(x, np.float64)).ravel()
+        y = np.atleast_1d(np.asarray(y, np.float64)).ravel()
+        if x.shape != y.shape:
+            raise ParameterError("x and y must have the same length")
+        row, col = self.index_of(x, y)
+        bad = (row < 0) | (row >= self.grid.ny) | (col < 0) | (col >= self.grid.nx) | ~np.isfinite(x + y)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            xmin, ymin, xmax, ymax = self.bounds
+            raise ParameterError(f"position ({x[k]:.1f}, {y[k]:.1f}) is outside the database grid "
+                                 f"x {xmin:.1f}..{xmax:.1f}, y {ymin:.1f}..{ymax:.1f}")
+        return row, col
+
+    def raw_at(self, x, y) -> np.ndarray:
+        """int16 (n, bins) raw skylines at the nearest grid positions to (x, y) [m]."""
+        row, col = self._rows_cols(x, y)
+        return self._gather("elevation", row, col)
+
+    def _gather(self, name: str, row: np.ndarray, col: np.ndarray) -> np.ndarray:
+        # Group the positions by block so each chunk is decoded once, one chunk in memory at a time.
+        arr = self._array(name)
+        out = np.empty((row.size,) + tuple(arr.shape[2:]), arr.dtype)
+        b = self.grid.block
+        key = (row // b) * self.grid.n_blocks[1] + col // b
+        order = np.argsort(key, kind="stable")
+        starts = np.flatnonzero(np.r_[True, np.diff(key[order]) != 0])
+        for s, e in zip(starts, np.r_[starts[1:], order.size]):
+            idx = order[s:e]
+            br, bc = int(row[idx[0]] // b), int(col[idx[0]] // b)
+            rs, cs = self.grid.block_slices(br, bc)
+            chunk = self.read_raw(name, br, bc)
+            out[idx] = chunk[row[idx] - rs.start, col[idx] - cs.start]
+        return out
+
+    def _array(self, name: str):
+        a = self._arrays.get(name)
+        if a is None:  # opening reads the array's zarr.json: once, not once per block
+            a = self._arrays[name] = self._g[name]
+        return a
+
+    def _read_unchecked(self, name: str, br: int, bc: int) -> np.ndarray:
+        rs, cs = self.grid.block_slices(br, bc)
+        return np.asarray(self._array(name)[rs, cs])
+
+    def read_raw(self, name: str, br: int, bc: int) -> np.ndarray:
+        """Array ``name``'s chunk of block (br, bc) as stored, shaped (rows, cols[, bins]).
+
+        Raises :class:`~skyfix.errors.DatabaseError` naming the block if its chunk file is gone
+        (zarr would hand back fill values) or cannot be decoded.
+        """
+        if name in self._absent.get((br, bc), ()):
+            raise DatabaseError(data_missing_message(self.path, {(br, bc): self._absent[(br, bc)]}))
+        try:
+            return self._read_unchecked(name, br, bc)
+        except Exception as e:  # a damaged chunk fails to decode (zstd checksum) in many ways
+            raise DatabaseError(
+                f"{self.path}: block ({br}, {bc}) data unreadable ({name} chunk: {type(e).__name__}: "
+                f"{e}): run `skyfix verify {self.path}`, then delete the damaged blocks' markers "
+                f"({MARKER_DIR}/{marker_name(br, bc)}) and rerun the build-db command (it resumes)"
+            ) from None
+
+    def profiles_at(self, x, y) -> np.ndarray:
+        """float32 (n, bins) [deg] skylines at the nearest grid positions (NaN = no terrain)."""
+        return dequantise(self.raw_at(x, y), self.scale_deg, self.missing)
+
+    def ground_z_at(self, x, y) -> np.ndarray:
+        """float32 (n,) [m] ground height at the nearest grid positions."""
+        row, col = self._rows_cols(x, y)
+        return self._gather("ground_z", row, col)
+
+    # --- blocks ----------------------------------------------------------------------------------
+    def read_block(self, br: int, bc: int) -> Block:
+        """Block (br, bc) of the block grid."""
+        rs, cs = self.grid.block_slices(br, bc)
+        rows, cols = rs.stop - rs.start, cs.stop - cs.start
+        x, y = self.grid.block_xy(br, bc)
+        return Block(rs.start, cs.start, rows, cols, x, y,
+                     self.read_raw("elevation", br, bc).reshape(rows * cols, -1),
+                     self.read_raw("ground_z", br, bc).ravel(),
+                     self.read_raw("min_ray_m", br, bc).ravel(),
+                     self.read_raw("edge_bins", br, bc).ravel(), self.scale_deg, self.missing)
+
+    def iter_blocks(self) -> Iterator[Block]:
+        """Every built block in a fixed order (north to south, west to east), one in memory at a time."""
+        for br, bc in self.grid.blocks():
+            if (br, bc) in self._done:
+                yield self.read_block(br, bc)
+
+    def __repr__(self) -> str:
+        ny, nx = self.shape
+        return (f"SkylineDatabase({str(self.path)!r}, {nx} x {ny} positions at {self.spacing_m:g} m, "
+                f"{self.azimuth_bins} bins, {self.blocks_done}/{self.n_blocks} blocks"
+                + (f", {len(self._absent)} without data)" if self._absent else ")"))
+
+
+def open_database(path, *, allow_incomplete: bool = False) -> SkylineDatabase:
+    """Open a skyline database read-only.
+
+    Raises :class:`~skyfix.errors.DatabaseError` if ``path`` is not a skyfix database, was written by
+    a newer format, or (unless ``allow_incomplete``) is not completely built.
+    """
+    import zarr
+
+    path = Path(path)
+    if not path.exists():
+        raise DatabaseError(f"database {path} does not exist: build it with `skyfix build-db`")
+    state, attrs = root_state(path) if path.is_dir() else ("none", None)
+    if state == "damaged":
+        raise DatabaseError(f"{path}: database metadata damaged: {attrs}: rebuild it with "
+                            "`skyfix build-db ... --overwrite`")
+    if state != "ok":
+        raise DatabaseError(f"{path} is not a skyfix skyline database (no zarr.json with format "
+                            f"{FORMAT!r}): give the folder `skyfix build-db` wrote")
+    version = attrs.get("format_version")
+    if not is_int(version):
+        raise damaged(path, f"format_version must be a whole number, got {version!r}")
+    if version > FORMAT_VERSION:
+        raise DatabaseError(f"{path} has format version {version}, newer than this "
+                            f"skyfix ({__version__}) reads ({FORMAT_VERSION}): upgrade skyfix")
+    check_attrs(path, attrs)
+    try:
+        g = zarr.open_group(str(path), mode="r")
+        for name in DATA_ARRAYS:
+            g[name]
+    except Exception as e:  # zarr raises several unrelated types for a broken store
+        raise DatabaseError(f"{path} is a damaged skyline database ({type(e).__name__}: {e})") from None
+    check_arrays(path, g, attrs)
+    done = done_blocks(path)
+    db = SkylineDatabase(path, g, attrs, done)
+    db._absent = absent_data(path, g, db.grid, done)
+    if not allow_incomplete:
+        if db.blocks_data_missing:
+            raise DatabaseError(data_missing_message(path, db._absent))
+        if not db.is_complete:
+            raise DatabaseError(f"{path} is incomplete ({db.blocks_done} of {db.n_blocks} blocks built): "
+                                "run the same `skyfix build-db` command again to finish it")
+    return db
