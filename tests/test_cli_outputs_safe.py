@@ -87,7 +87,7 @@ def test_simulate_overwrite_with_a_bad_seed_keeps_the_old_acquisition(dem, old_a
 
 def test_simulate_failing_midway_keeps_the_old_acquisition(dem, old_acq, monkeypatch):
     """A crash (or a kill) while rendering leaves the earlier acquisition whole, and no debris."""
-    import skyfix.simulate as sim
+    import skyfix.simulate.acquisition as sim
 
     real = sim._render_one
     calls = []
@@ -109,7 +109,7 @@ def test_simulate_failing_midway_keeps_the_old_acquisition(dem, old_acq, monkeyp
 
 @pytest.mark.parametrize("exchange", [True, False], ids=["renameat2", "two-renames"])
 def test_simulate_overwrite_replaces_the_folder_whole(dem, old_acq, monkeypatch, exchange):
-    import skyfix.simulate as sim
+    import skyfix.simulate.folders as sim
 
     if not exchange:  # a filesystem without an atomic exchange
         monkeypatch.setattr(sim, "_exchange", lambda a, b: False)
@@ -185,7 +185,7 @@ def test_simulate_set_overwrite_with_a_bad_option_keeps_the_old_set(dem, old_acq
 
 
 def test_simulate_set_failing_midway_keeps_the_old_set(dem, old_acq, monkeypatch):
-    import skyfix.simulate as sim
+    import skyfix.simulate.acquisition as sim
 
     def crash(*a, **k):
         raise KeyboardInterrupt

@@ -679,7 +679,7 @@ def test_outside_dem_raises(hills, tmp_path):
 
 def test_antialiased_edge_carries_the_subpixel_row():
     """Ground coverage per column equals the ground extent below the truth row, (H - 0.5) - r."""
-    from skyfix.simulate import _antialias_edge
+    from skyfix.simulate.shading import antialias_edge as _antialias_edge
 
     H, W = 40, 64
     r = np.linspace(3.0, 30.0, W) + 0.37 * np.sin(np.arange(W))

@@ -1,0 +1,82 @@
+"""Imaging conditions of a simulated acquisition: dust, clouds, rocks, glare, exposure faults and
+blur, each with a strength in [0, 1]. A new condition enters as a field here and a term in
+:mod:`.shading` (or :mod:`.scene` when it changes the world, as rocks do).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+from ..errors import ParameterError
+
+
+@dataclass(frozen=True)
+class Conditions:
+    """Degradations of an acquisition, each a strength in [0, 1] (0 = absent).
+
+    dust : airborne dust: short haze distance, low contrast at the horizon
+    clouds : bright cloud structures above the skyline (Earth only)
+    rocks : boulders near the rover that the DEM does not contain and that cut the skyline
+    glare : the sun in view, with veiling glare and lens flare
+    overexposed, dark : exposure faults (gain up to x3 and clipped; gain down to x0.15, noisier)
+    blur : defocus / motion blur (up to about 4 px)
+    """
+
+    dust: float = 0.0
+    clouds: float = 0.0
+    rocks: float = 0.0
+    glare: float = 0.0
+    overexposed: float = 0.0
+    dark: float = 0.0
+    blur: float = 0.0
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
+                raise ParameterError(f"condition {f.name} strength must be in [0, 1], got {v!r}")
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+    @classmethod
+    def parse(cls, spec: str | None) -> "Conditions":
+        """``"dust,rocks:0.5"``: comma-separated names, each optionally ``:strength`` (default 1)."""
+        if spec is None or not str(spec).strip():
+            return cls()
+        kw = {}
+        for item in str(spec).split(","):
+            item = item.strip()
+            if not item:
+                continue
+            name, _, val = item.partition(":")
+            name = name.strip().lower()
+            if name not in cls.names():
+                raise ParameterError(
+                    f"unknown condition {name!r}: choose from {', '.join(cls.names())} "
+                    "(e.g. --conditions dust:0.5,rocks)")
+            try:
+                kw[name] = float(val) if val.strip() else 1.0
+            except ValueError:
+                raise ParameterError(f"condition {name}: strength {val!r} is not a number in [0, 1]") from None
+        return cls(**kw)
+
+    def active(self) -> dict:
+        return {k: v for k, v in asdict(self).items() if v > 0}
+
+    def __str__(self) -> str:
+        return ",".join(f"{k}:{v:g}" for k, v in self.active().items()) or "nominal"
+
+
+def as_conditions(c) -> Conditions:
+    """:class:`Conditions` from None (none), a Conditions, or what :meth:`Conditions.parse` takes."""
+    if c is None:
+        return Conditions()
+    if isinstance(c, Conditions):
+        return c
+    if isinstance(c, str):
+        return Conditions.parse(c)
+    if isinstance(c, dict):
+        return Conditions(**c)
+    raise ParameterError(f"conditions must be a Conditions, a dict or a string, got {type(c).__name__}")
