@@ -285,9 +285,9 @@ def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig, *
     rendered at the truth and at the fix and seen through the same levelling."""
     from .horizon import render_horizons
     from .pose import body_profile
-    from .report import _pyplot, _save
+    from .report import pyplot, save_figure
 
-    plt = _pyplot()
+    plt = pyplot()
     n = profile.n_bins
     fig, ax = plt.subplots(figsize=(9, 3))
     az = profile.azimuth_deg
@@ -311,7 +311,7 @@ def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig, *
                  f"{res.heading_error_deg:.2f} deg, confidence {res.confidence:.2f}", fontsize=9)
     ax.legend(fontsize=7, loc="upper right")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def evaluate_detection(images_dir, out=None, *, method: str = "dp") -> list[dict]:

@@ -92,7 +92,7 @@ def render_horizons(dem: Dem, x, y, *, camera_height_m: float = 1.5, planet="ear
     _check(dem, x, y, camera_height_m, azimuth_bins, max_distance_m)
     planet = get_planet(planet)
     bins = int(azimuth_bins)
-    data, offs, rows, cols = _packed(dem)
+    data, offs, rows, cols = packed_pyramid(dem)
     az = np.radians(azimuth_centres(bins))
     elev = np.empty((x.size, bins), np.float32)
     length = np.empty((x.size, bins), np.float32)
@@ -110,7 +110,9 @@ def render_horizon(dem: Dem, x: float, y: float, **kw) -> HorizonBatch:
     return render_horizons(dem, [x], [y], **kw)
 
 
-def _packed(dem: Dem):
+def packed_pyramid(dem: Dem):
+    """The DEM's max pyramid packed for the numba kernels (:meth:`Dem.packed_pyramid`: data,
+    offsets, rows, cols per level), built once per DEM instance and cached on it."""
     # Cache on the instance: building and packing the pyramid is O(cells).
     p = dem.__dict__.get("_packed_pyramid")
     if p is None:
@@ -131,7 +133,7 @@ def _bilinear(z, u, v):
 
 
 @numba.njit(cache=True, nogil=True)
-def _pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end):
+def pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end):
     """Where a ray stands in the max pyramid: the level-0 cell (i, j) at distance ``t`` [m], its
     block (bi, bj) at ``level``, and the distance [m] at which the ray leaves that block (> t).
 
@@ -188,7 +190,7 @@ def _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, t
     level = 0
     eps_t = 1e-6
     while t < t_end:
-        i, j, bi, bj, t_exit = _pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end)
+        i, j, bi, bj, t_exit = pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end)
         hmax = pdata[poffs[level] + bi * pcols[level] + bj]
         if hmax == -np.inf:
             ub = -np.inf

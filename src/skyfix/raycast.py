@@ -35,7 +35,7 @@ import numpy as np
 from .camera import Camera, r_world_body, r_world_cam
 from .dem import Dem
 from .formats import PanoramaSpec
-from .horizon import T_MIN_M, _packed, _pyramid_block
+from .horizon import T_MIN_M, packed_pyramid, pyramid_block
 from .planets import get_planet
 
 #: projection codes of the kernels
@@ -147,7 +147,7 @@ def cast_image(dem: Dem, origin, proj: Projection, *, planet="earth", rocks=None
     rocks : (K, 5) ellipsoids ``(x, y, z, radius_h, radius_v)`` [m], or None
     """
     planet = get_planet(planet)
-    data, offs, rows, cols = _packed(dem)
+    data, offs, rows, cols = packed_pyramid(dem)
     H, W = proj.height, proj.width
     direction = np.empty((H, W, 3), np.float32)
     terrain_t = np.empty((H, W))
@@ -174,7 +174,7 @@ def column_skyline(dem: Dem, origin, proj: Projection, sky_mask: np.ndarray, *, 
     sky_mask : bool (H, W), True where the pixel-centre ray is sky for the same surfaces
     """
     planet = get_planet(planet)
-    data, offs, rows, cols = _packed(dem)
+    data, offs, rows, cols = packed_pyramid(dem)
     out = np.empty(proj.width)
     _skyline_kernel(dem.z, data, offs, rows, cols, dem.x0, dem.y0, dem.dx, dem.dy,
                     np.asarray(origin, np.float64), proj.kind, np.asarray(proj.params, np.float64),
@@ -267,7 +267,7 @@ def _first_hit(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, tan_el, t_end,
     level = 0
     eps_t = 1e-6
     while t < t_end:
-        i, j, bi, bj, t_exit = _pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end)
+        i, j, bi, bj, t_exit = pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end)
         hmax = pdata[poffs[level] + bi * pcols[level] + bj]
         if hmax == -np.inf:
             ub = -np.inf

@@ -197,7 +197,9 @@ def format_table(rows: list[dict], fmt: str = "text") -> str:
 
 # --- figures ---------------------------------------------------------------------------------------
 
-def _pyplot():
+def pyplot():
+    """matplotlib.pyplot on the non-interactive Agg backend (imported only when a figure is
+    drawn: plotting stays out of the board segment's imports)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -206,16 +208,17 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path) -> Path:
+def save_figure(fig, path) -> Path:
+    """Write ``fig`` as PNG to ``path`` atomically (110 dpi) and close it."""
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
-    _pyplot().close(fig)
+    pyplot().close(fig)
     return Path(path)
 
 
 def plot_error_cdfs(results: list[CaseResult], path, scenario: int) -> Path:
     """Empirical CDF of the position error (heading error for scenario 3) per set."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     key = "heading_error_deg" if scenario == 3 else "position_error_m"
     for s in sorted({r.set for r in results}):
@@ -233,12 +236,12 @@ def plot_error_cdfs(results: list[CaseResult], path, scenario: int) -> Path:
     ax.legend(fontsize=8, loc="lower right")
     ax.set_title(f"scenario {scenario}: error CDF per set")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_reliability(results: list[CaseResult], path) -> Path:
     """Reliability diagram of the confidence (stated vs observed share correct)."""
-    plt = _pyplot()
+    plt = pyplot()
     rows = reliability_rows(results)
     fig, ax = plt.subplots(figsize=(4.5, 4.5))
     ax.plot([0, 1], [0, 1], "k--", lw=1, label="perfect calibration")
@@ -255,7 +258,7 @@ def plot_reliability(results: list[CaseResult], path) -> Path:
     ax.legend(fontsize=8, loc="upper left")
     ax.set_title("confidence reliability (cases per bin)")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 # --- the report ------------------------------------------------------------------------------------

@@ -33,7 +33,7 @@ from .layout import (BLOCK, COMPRESSED_SHARE, FORMAT, FORMAT_VERSION, Grid, MARK
                      array_sha256, marker_name, quantise)
 
 
-log = logging.getLogger(__name__)
+log = logging.getLogger(__package__)  # messages name the stage, as before the split
 
 
 # --- build -----------------------------------------------------------------------------------------

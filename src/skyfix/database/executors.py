@@ -12,7 +12,7 @@ from contextlib import contextmanager
 from ..errors import ParameterError
 
 
-log = logging.getLogger(__name__)
+log = logging.getLogger(__package__)  # messages name the stage, as before the split
 
 
 class InProcessExecutor(Executor):

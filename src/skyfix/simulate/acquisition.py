@@ -36,7 +36,7 @@ from .scene import Scene, make_scene, rock_layout
 from .shading import shade
 
 
-log = logging.getLogger(__name__)
+log = logging.getLogger(__package__)  # messages name the stage, as before the split
 
 
 #: panorama size [px] and extent [deg]: 4096 x 1024 over 360 x 90 deg gives square pixels

@@ -1,0 +1,59 @@
+"""The entry point: :func:`acquisition_profile` reads an acquisition's images, detects their skylines
+and builds the body-frame profile by the ``project`` or the ``stitch`` method."""
+
+from __future__ import annotations
+
+import logging
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import DetectionError, ParameterError
+from ..formats import Acquisition, Profile, Skyline
+from .frames import Detector, detect_frames, get_detector, read_rgb
+from .geometry import check_bins
+from .pans import DEFAULT_REFINEMENT, PanRefinement
+from .project import panorama_profile, profile_from_skylines
+
+
+log = logging.getLogger(__package__)  # messages name the stage, as before the split
+
+
+METHODS = ("project", "stitch")
+
+
+def acquisition_profile(acq: Acquisition, *, method: str = "project", azimuth_bins: int = 360,
+                        detector: str | Detector = "dp", skylines: Sequence[Skyline | None] | None = None,
+                        refine: PanRefinement = DEFAULT_REFINEMENT) -> Profile:
+    """The body-frame angular profile of an acquisition.
+
+    method : ``project`` (per-frame projection, needs known pointing) or ``stitch`` (OpenCV
+        panorama, then one detection); a panorama acquisition is read directly whatever the method
+    azimuth_bins : bins over 360 deg (bin k centred on ``k * 360 / n`` deg)
+    detector : a :func:`skyfix.detect.detect_skyline` method name or a callable
+        ``(rgb_uint8, mask=None) -> Skyline``
+    skylines : per-frame skylines already known (skips detection; ``project`` only)
+    """
+    if method not in METHODS:
+        raise ParameterError(f"unknown profile method {method!r}: choose one of {', '.join(METHODS)}")
+    check_bins(azimuth_bins)
+    if acq.panorama is not None:
+        spec = acq.panorama
+        img = read_rgb(acq.image_path(spec.image))
+        mask = np.any(img > 0, axis=2)
+        if skylines is not None:
+            sky = skylines[0]
+        else:
+            try:
+                sky = get_detector(detector)(img, mask=mask)
+            except DetectionError as e:
+                raise DetectionError(f"no skyline in panorama {spec.image}: {e}") from None
+        return panorama_profile(spec, sky, azimuth_bins=azimuth_bins,
+                                pitch_deg=acq.prior_pitch_deg, roll_deg=acq.prior_roll_deg)
+    if method == "stitch":
+        from .stitch import stitched_profile
+
+        return stitched_profile(acq, azimuth_bins=azimuth_bins, detector=detector)
+    if skylines is None:
+        skylines = detect_frames(acq, detector)
+    return profile_from_skylines(acq, skylines, azimuth_bins=azimuth_bins, refine=refine)

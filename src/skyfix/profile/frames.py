@@ -1,0 +1,70 @@
+"""Reading an acquisition's images and detecting their skylines (the detector is any callable with
+:func:`skyfix.detect.detect_skyline`'s signature, or a method name).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Callable
+
+import numpy as np
+
+from ..errors import AcquisitionError, DetectionError
+from ..formats import Acquisition, Skyline
+
+
+#: A detector: RGB uint8 image (H, W, 3) and a validity mask (or None) -> Skyline.
+Detector = Callable[..., Skyline]
+
+log = logging.getLogger(__package__)  # messages name the stage, as before the split
+
+
+
+def read_rgb(path) -> np.ndarray:
+    """An image as RGB uint8 (H, W, 3); 16-bit images are scaled down."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise AcquisitionError(f"cannot read image {path}: not an image OpenCV can decode")
+    if img.dtype == np.uint16:
+        img = (img >> 8).astype(np.uint8)
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
+    elif img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
+    else:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return np.ascontiguousarray(img)
+
+
+def get_detector(detector: str | Detector) -> Detector:
+    """A detector callable ``(rgb, mask=None) -> Skyline`` from a method name or a callable."""
+    if callable(detector):
+        return detector
+    from ..detect import detect_skyline  # the sibling stage; imported only when detecting
+
+    def run(image, mask=None):
+        return detect_skyline(image, mask=mask, method=detector)
+
+    return run
+
+
+def detect_frames(acq: Acquisition, detector: str | Detector = "dp") -> list[Skyline | None]:
+    """Detect the skyline in every frame; a frame whose detection raises DetectionError is None."""
+    det = get_detector(detector)
+    out: list[Skyline | None] = []
+    for f in acq.frames:
+        img = read_rgb(acq.image_path(f.image))
+        h, w = img.shape[:2]
+        if (w, h) != (acq.camera.width, acq.camera.height):
+            raise AcquisitionError(
+                f"image {f.image} is {w} x {h} px but camera is {acq.camera.width} x {acq.camera.height}")
+        try:
+            s = det(img, mask=None)
+            s.image = s.image or f.image
+            out.append(s)
+        except DetectionError as e:
+            log.warning("frame %s: %s", f.image, e)
+            out.append(None)
+    return out
