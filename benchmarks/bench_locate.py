@@ -142,7 +142,7 @@ def main():
     if tr is not None:
         fr, fc = (int(v) for v in db.index_of(fix["x"], fix["y"]))
         err = ((fix["x"] - tx) ** 2 + (fix["y"] - ty) ** 2) ** 0.5
-        print(f"  fix ({fix['x']:.1f}, {fix['y']:.1f}) heading {fix['heading_deg']:.2f}: "
+        print(f"  fix ({fix['x']:.1f}, {fix['y']:.1f}) grid heading {fix['grid_heading_deg']:.2f}: "
               f"{err:.1f} m from the truth; nearest grid position to the truth: {(fr, fc) == (tr, tc)}")
     t = {k: med(m["timing"][k] for m in mat) for k in mat[0]["timing"]}
     print(f"matcher alone (medians of {args.repeat}): search wall {med(m['search_s'] for m in mat):.2f} s, "

@@ -95,7 +95,7 @@ def run_case(scenario, dem, case, rng, store=None):
         rx, ry = c["x"] + pos_err * math.sin(a), c["y"] + pos_err * math.cos(a)
         h0 = c["heading_deg"] + rng.uniform(-5, 5)
         fix = estimate_heading(prof, dem, rx, ry, h0 % 360.0, 10.0)
-        herr = abs(_ang(fix.heading_deg - c["heading_deg"]))
+        herr = abs(_ang(fix.grid_heading_deg - c["heading_deg"]))
         row.update(position_error_m=pos_err, heading_err_deg=herr, err=herr,
                    sigma=fix.heading_sigma_deg)
     else:
@@ -108,7 +108,7 @@ def run_case(scenario, dem, case, rng, store=None):
             fix = locate(prof, dem=dem, prior_xy=prior, prior_radius_m=20.0)
             row.update(prior_x=prior[0], prior_y=prior[1])
         err = float(math.hypot(fix.x - c["x"], fix.y - c["y"]))
-        row.update(err_m=err, err=err, heading_err_deg=abs(_ang(fix.heading_deg - c["heading_deg"])),
+        row.update(err_m=err, err=err, heading_err_deg=abs(_ang(fix.grid_heading_deg - c["heading_deg"])),
                    pitch_err_deg=fix.pitch_deg - c["pitch_deg"], roll_err_deg=fix.roll_deg - c["roll_deg"],
                    sigma=fix.position_sigma_m)
     feats = fix.features

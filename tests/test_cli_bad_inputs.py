@@ -468,11 +468,11 @@ def test_heading_stays_in_its_window():
     x, y = 601_500.0, 6_744_000.0
     prof = pose.synthetic_profile(dem, x, y, 80.0, noise_deg=0.05, rng=1)
     h = pose.estimate_heading(prof, dem, x, y, 95.0, 10.0)
-    d = (h.heading_deg - 95.0 + 180.0) % 360.0 - 180.0
+    d = (h.grid_heading_deg - 95.0 + 180.0) % 360.0 - 180.0  # the prior and the window are grid
     assert -10.0 - 1e-6 <= d <= 10.0 + 1e-6  # was -15: the truth, outside the window
     assert h.confidence <= pose.PINNED_HEADING_CONFIDENCE
     inside = pose.estimate_heading(prof, dem, x, y, 86.0, 10.0)  # truth inside: found, not capped
-    assert abs(inside.heading_deg - 80.0) < 0.5 and inside.confidence > pose.PINNED_HEADING_CONFIDENCE
+    assert abs(inside.grid_heading_deg - 80.0) < 0.5 and inside.confidence > pose.PINNED_HEADING_CONFIDENCE
 
 
 # --- 8. plot formats --------------------------------------------------------------------------------

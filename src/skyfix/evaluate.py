@@ -123,7 +123,7 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
                                   camera_height_m=acq.camera_height_m, planet=cfg.planet,
                                   prior_pitch_deg=acq.prior_pitch_deg, prior_roll_deg=acq.prior_roll_deg)
             res.fix_x, res.fix_y = x, y
-            res.fix_heading_deg, res.fix_pitch_deg, res.fix_roll_deg = hf.heading_deg, hf.pitch_deg, hf.roll_deg
+            res.fix_heading_deg, res.fix_pitch_deg, res.fix_roll_deg = hf.grid_heading_deg, hf.pitch_deg, hf.roll_deg
             res.heading_sigma_deg, res.confidence, res.score = hf.heading_sigma_deg, hf.confidence, hf.score
             extra["features"] = dict(hf.features)
         else:
@@ -136,7 +136,7 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
             fix = locate(profile, db=db if cfg.scenario == 1 else None, dem=dem,
                          prior_pitch_deg=acq.prior_pitch_deg, prior_roll_deg=acq.prior_roll_deg,
                          camera_height_m=acq.camera_height_m, planet=cfg.planet, **kw)
-            res.fix_x, res.fix_y, res.fix_heading_deg = fix.x, fix.y, fix.heading_deg
+            res.fix_x, res.fix_y, res.fix_heading_deg = fix.x, fix.y, fix.grid_heading_deg
             res.fix_pitch_deg, res.fix_roll_deg = fix.pitch_deg, fix.roll_deg
             res.position_sigma_m, res.heading_sigma_deg = fix.position_sigma_m, fix.heading_sigma_deg
             res.confidence, res.score = fix.confidence, fix.score
@@ -314,11 +314,13 @@ def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig, *
     return save_figure(fig, path)
 
 
-def evaluate_detection(images_dir, out=None, *, method: str = "dp") -> list[dict]:
+def evaluate_detection(images_dir, out=None, *, method: str | None = None) -> list[dict]:
     """Score the detector on every ``NAME.png`` with a ``NAME.skyline.json`` truth in a folder."""
-    from .detect import combine_scores, detect_skyline, score_skyline
+    from .detect import DEFAULT_METHOD, combine_scores, detect_skyline, score_skyline
     from .formats import read_skyline_json
     from .profile import read_rgb
+
+    method = method or DEFAULT_METHOD
 
     images_dir = Path(images_dir)
     if not images_dir.is_dir():

@@ -26,7 +26,9 @@ ROVER_SLOWDOWN = 30.0
 
 @dataclass
 class CaseResult:
-    """One evaluated case. Angles [deg], positions [m], times [s], memory [MB]; NaN when unknown."""
+    """One evaluated case. Angles [deg], positions [m], times [s], memory [MB]; NaN when unknown.
+    The truth's yaw and the fix's heading are both from grid north here (the simulator's
+    frame), so their difference is the heading error whatever the CRS's convergence."""
 
     case: str
     set: str

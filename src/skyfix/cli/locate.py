@@ -118,7 +118,7 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
         from ..horizon import render_horizons
 
         w = render_horizons(dem, [fix.x], [fix.y], azimuth_bins=1440).elevation_deg[0]
-        ax.plot(az, body_profile(w, fix.heading_deg, fix.pitch_deg, fix.roll_deg, n_bins=q.size),
+        ax.plot(az, body_profile(w, fix.grid_heading_deg, fix.pitch_deg, fix.roll_deg, n_bins=q.size),
                 "r-", lw=1, label="rendered at fix")
     ax.set_xlabel("azimuth from forward axis [deg]")
     ax.set_ylabel("elevation [deg]")
@@ -199,8 +199,8 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_rad
     if plot is not None:
         _plot(plot, fix, mres, db, dem, prof)
     if out is not None:
-        click.echo(f"fix ({fix.x:.1f}, {fix.y:.1f}) heading {fix.heading_deg:.1f} deg "
-                   f"confidence {fix.confidence:.2f} -> {out}", err=True)
+        click.echo(f"fix ({fix.x:.1f}, {fix.y:.1f}) heading {fix.heading_deg:.1f} deg from true "
+                   f"north, confidence {fix.confidence:.2f} -> {out}", err=True)
 
 
 @click.command("heading")
@@ -210,24 +210,30 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_rad
 @click.option("--dem", "dem_path", required=True, type=click.Path(dir_okay=False))
 @click.option("--x", "x", required=True, type=float, help="Rough position x [m].")
 @click.option("--y", "y", required=True, type=float, help="Rough position y [m].")
-@click.option("--heading-prior-deg", required=True, type=float,
-              help="Heading prior [deg], clockwise from grid north.")
+@click.option("--heading-prior-deg", type=float,
+              help="Heading prior [deg], clockwise from true north (from grid north with "
+                   "--prior-north grid). Without one, the full circle is searched.")
+@click.option("--prior-north", type=click.Choice(["true", "grid"]), default="true", show_default=True,
+              help="Which north the heading prior is measured from.")
 @click.option("--window-deg", default=10.0, show_default=True, type=float,
-              help="Search +/- this around the prior [deg].")
+              help="Search +/- this around the prior [deg] (180 without a prior).")
 @click.option("--camera-height-m", type=float, callback=camera_height,
               help="Camera height [m] (default: the acquisition's).")
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Heading JSON (default stdout).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output.")
-def heading(acq_dir, profile_path, dem_path, x, y, heading_prior_deg, window_deg,
+def heading(acq_dir, profile_path, dem_path, x, y, heading_prior_deg, prior_north, window_deg,
             camera_height_m, out, overwrite):
     """Find the heading only, from a rough position."""
     import math
 
     from .._io import check_outputs, to_json, write_json
     from ..dem import load_dem
+    from ..north import grid_heading_from_true, meridian_convergence_deg
     from ..pose import at_window_edge, estimate_heading
 
     _check_source(acq_dir, profile_path)
+    if heading_prior_deg is None:  # no prior: the whole circle
+        heading_prior_deg, window_deg = 0.0, 180.0
     for name, v in (("--x", x), ("--y", y), ("--heading-prior-deg", heading_prior_deg)):
         if not math.isfinite(v):
             raise ParameterError(f"{name} must be a finite number, got {v}")
@@ -237,9 +243,15 @@ def heading(acq_dir, profile_path, dem_path, x, y, heading_prior_deg, window_deg
     prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path)
     dem = load_dem(dem_path)
     h = camera_height_m if camera_height_m is not None else (cam_h if cam_h is not None else 1.5)
-    hf = estimate_heading(prof, dem, x, y, heading_prior_deg, window_deg, camera_height_m=h,
+    conv = meridian_convergence_deg(dem.crs_wkt, x, y)
+    if prior_north == "true" and not math.isfinite(conv) and window_deg < 180:
+        click.echo(f"warning: {dem_path} has no CRS that says where true north is: the heading "
+                   "prior is taken from grid north", err=True)
+    grid_prior = (grid_heading_from_true(heading_prior_deg, conv) if prior_north == "true"
+                  else heading_prior_deg)
+    hf = estimate_heading(prof, dem, x, y, grid_prior, window_deg, camera_height_m=h,
                           prior_pitch_deg=pp, prior_roll_deg=pr)
-    if window_deg < 180 and at_window_edge(hf.heading_deg, heading_prior_deg, window_deg):
+    if window_deg < 180 and at_window_edge(hf.grid_heading_deg, grid_prior, window_deg):
         click.echo(f"warning: the heading {hf.heading_deg:.1f} deg is on the edge of the window "
                    f"{heading_prior_deg:g} +- {window_deg:g} deg: the best match lies outside it "
                    "(confidence capped); check the prior or widen --window-deg", err=True)

@@ -10,9 +10,12 @@ from dataclasses import asdict, dataclass, field
 @dataclass(frozen=True)
 class Fix:
     """The answer of :func:`locate` (``conventions.md``): position [m] in ``crs``, lon/lat [deg],
-    heading/pitch/roll [deg], 1-sigma position [m] and heading [deg], calibrated ``confidence``,
-    ``score`` (mean squared residual [deg^2], clipped per bin at max(3 noise, 0.5 deg) after
-    refinement) and the top candidates."""
+    heading [deg] from true north with the grid heading (the yaw, from the CRS's +y axis) and the
+    meridian convergence (``heading_deg - grid_heading_deg``; NaN, and ``heading_deg`` the grid
+    heading, where the CRS does not say where true north is), pitch/roll [deg], 1-sigma position
+    [m] and heading [deg], calibrated ``confidence``, ``score`` (mean squared residual [deg^2],
+    clipped per bin at max(3 noise, 0.5 deg) after refinement) and the top candidates (their
+    headings from true north too)."""
 
     x: float
     y: float
@@ -20,6 +23,8 @@ class Fix:
     lon: float
     lat: float
     heading_deg: float
+    grid_heading_deg: float
+    meridian_convergence_deg: float
     pitch_deg: float
     roll_deg: float
     position_sigma_m: float
@@ -43,7 +48,9 @@ class Fix:
 
 @dataclass(frozen=True)
 class HeadingFix:
-    """Scenario 3's answer: heading [deg] (and pitch/roll [deg]) at a given rough position."""
+    """Scenario 3's answer at a given rough position (x, y) [m] in ``crs`` (lon/lat [deg]): heading
+    [deg] from true north, the grid heading and the meridian convergence as in :class:`Fix`, its
+    1-sigma [deg], pitch/roll [deg], calibrated ``confidence`` and ``score`` [deg^2]."""
 
     heading_deg: float
     heading_sigma_deg: float
@@ -53,6 +60,11 @@ class HeadingFix:
     score: float
     x: float
     y: float
+    grid_heading_deg: float = float("nan")
+    meridian_convergence_deg: float = float("nan")
+    crs: str = ""
+    lon: float = float("nan")
+    lat: float = float("nan")
     features: dict = field(default_factory=dict, compare=False)
 
     def to_dict(self) -> dict:

@@ -12,7 +12,8 @@ from ..errors import ParameterError
 from ..match import prepare_query, score_profiles
 from .attitude import fit_attitude
 from .confidence import confidence_features, confidence_from_features, structureless_cap
-from .fix import HeadingFix
+from ..north import meridian_convergence_deg, true_heading_deg
+from .fix import HeadingFix, crs_and_lonlat
 from .forward import body_profile, harmonic_tilt
 from .scoring import profile_arrays
 
@@ -32,7 +33,9 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                      render_bins=1440, model=None) -> HeadingFix:
     """Scenario 3: heading [deg] from a rough position (x, y) [m] and a heading prior [deg].
 
-    The shift search is restricted to ``heading_prior_deg +/- window_deg``; the attitude is then
+    ``heading_prior_deg`` is from grid north, as every azimuth inside skyfix (the CLI converts a
+    true-north prior with :func:`skyfix.north.grid_heading_from_true`); the result carries both
+    norths. The shift search is restricted to ``heading_prior_deg +/- window_deg``; the attitude is then
     refined by Gauss-Newton with restarts, yaw kept within the window. A heading on the window's
     edge (the best lies beyond it) gets confidence at most PINNED_HEADING_CONFIDENCE.
     """
@@ -78,5 +81,9 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         # and the true heading most likely lies outside the window (truth 20 deg from the prior
         # with a +-10 deg window gave the edge at confidence 0.9).
         conf = min(conf, PINNED_HEADING_CONFIDENCE)
-    return HeadingFix(att.yaw_deg % 360.0, att.yaw_sigma_deg, att.pitch_deg, att.roll_deg, conf,
-                      att.rms_deg ** 2, float(x), float(y), feat)
+    grid = att.yaw_deg % 360.0
+    conv = meridian_convergence_deg(dem.crs_wkt, x, y)
+    crs, lon, lat = crs_and_lonlat(dem.crs_wkt, x, y)
+    return HeadingFix(true_heading_deg(grid, conv), att.yaw_sigma_deg, att.pitch_deg, att.roll_deg,
+                      conf, att.rms_deg ** 2, float(x), float(y), grid_heading_deg=grid,
+                      meridian_convergence_deg=conv, crs=crs, lon=lon, lat=lat, features=feat)

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..errors import ParameterError, SkyfixError
 from ..match import match_database, prepare_query
+from ..north import meridian_convergence_deg, true_heading_deg
 from .confidence import (confidence_features, confidence_from_features, position_sigma,
                          residual_correlation_bins, structureless_cap)
 from .config import PoseConfig
@@ -187,6 +188,14 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
                                    psig, tilt)
         conf = structureless_cap(confidence_from_features(feat, model, "locate"), relief, noise)
     crs, lon, lat = crs_and_lonlat(crs_wkt, fx, fy)
-    fix = Fix(float(fx), float(fy), crs, lon, lat, float(heading) % 360.0, float(pitch),
-              float(roll), float(psig), float(hsig), conf, float(best_s), tuple(cand_out), feat)
+    conv = meridian_convergence_deg(crs_wkt, fx, fy)
+    for c in cand_out:  # candidates are read like the fix: headings from true north
+        c["heading_deg"] = true_heading_deg(float(c["heading_deg"]),
+                                            meridian_convergence_deg(crs_wkt, c["x"], c["y"]))
+    grid = float(heading) % 360.0
+    fix = Fix(x=float(fx), y=float(fy), crs=crs, lon=lon, lat=lat,
+              heading_deg=true_heading_deg(grid, conv), grid_heading_deg=grid,
+              meridian_convergence_deg=conv, pitch_deg=float(pitch), roll_deg=float(roll),
+              position_sigma_m=float(psig), heading_sigma_deg=float(hsig), confidence=conf,
+              score=float(best_s), candidates=tuple(cand_out), features=feat)
     return (fix, mres) if return_match else fix
