@@ -13,6 +13,15 @@ each dev image resampled to 4 MP, timed against the target of 1 s per 4-MP image
 ``--cv`` adds a leave-one-image-out table for ``dp``: for each image, the sky classifier is
 retrained (same recipe as ``scripts/train_sky_model.py``) on the other labelled images and the
 held-out image is detected with that model. Slow (one training per image).
+
+``--cv-net DIR`` scores ``net`` cross-validated: DIR holds ``fold_K.onnx`` (+ ``.json``) from
+``scripts/train_sky_net.py --folds N --fold K``; each image is detected by the fold model that
+did not see it (its ``held_out`` list). The per-column confidence is calibrated held out too
+(isotonic, fitted on the other folds' columns), ``min_confidence`` is chosen on the other folds
+(least false + missed), and a reliability table of the calibrated confidence is printed.
+``--write-calibration MODEL.json`` stores the calibration fitted on every fold's columns (and the
+chosen ``min_confidence``) in the shipped model's metadata. Give ``--data`` twice (Mars and
+Earth) to pool both sets, as the calibration is.
 """
 
 from __future__ import annotations
@@ -125,6 +134,33 @@ def time_at_4mp(pairs, method, out=sys.stdout, **options):
     return med
 
 
+def peak_rss_4mp(img, out=sys.stdout):
+    """Peak RSS [MB] of a fresh process that imports skyfix, reads one 4-MP image from a PNG and
+    detects its skyline with ``net`` (the whole process: interpreter, imports, image, network)."""
+    import subprocess
+    import tempfile
+
+    import cv2
+
+    f = math.sqrt(4e6 / (img.shape[0] * img.shape[1]))
+    big = cv2.resize(img, (round(img.shape[1] * f), round(img.shape[0] * f)))
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "big.png"
+        cv2.imwrite(str(path), big[..., ::-1] if big.ndim == 3 else big)
+        code = ("import resource, sys, cv2; from skyfix.detect import detect_skyline; "
+                "im = cv2.cvtColor(cv2.imread(sys.argv[1]), cv2.COLOR_BGR2RGB); "
+                "detect_skyline(im, method='net'); "
+                "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
+        r = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True)
+    if r.returncode:
+        print(f"   peak RSS measurement failed: {r.stderr.strip()[-300:]}", file=out)
+        return None
+    mb = float(r.stdout.strip().splitlines()[-1])
+    print(f"   net: peak RSS of a process detecting one {big.shape[1]} x {big.shape[0]} image: "
+          f"{mb:.0f} MB (target 256 MB: ratio {mb / 256:.2f})", file=out, flush=True)
+    return mb
+
+
 def dev_pairs(folder):
     for truth_path in sorted(Path(folder).glob("*.skyline.json")):
         name = truth_path.name[: -len(".skyline.json")]
@@ -206,7 +242,8 @@ def degrade(img, how):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--methods", default="dp,bayes")
-    ap.add_argument("--data", default=str(DEV))
+    ap.add_argument("--data", action="append", default=[],
+                    help="labelled image folder (repeatable; default the Mars dev set)")
     ap.add_argument("--only", default="", help="comma-separated image names")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a detector option (dp only), e.g. --set w_region=0.1")
@@ -216,6 +253,10 @@ def main(argv=None):
     ap.add_argument("--cv-sim", default="",
                     help="training sims for --cv (the folder scripts/make_sky_sims.sh wrote)")
     ap.add_argument("--no-all", action="store_true", help="skip the shipped-model tables")
+    ap.add_argument("--cv-net", default="", metavar="DIR",
+                    help="score net with held-out fold models (see the module docstring)")
+    ap.add_argument("--write-calibration", default="", metavar="MODEL.json",
+                    help="with --cv-net: store the confidence calibration in this model metadata")
     ap.add_argument("--degrade", default="", metavar="grey|jpeg:Q|blur:S|denoise|resample:F",
                     help="degrade every image first (robustness to compression and smoothing)")
     args = ap.parse_args(argv)
@@ -229,11 +270,13 @@ def main(argv=None):
         kind = type(getattr(DpOptions(), k))
         # bool("False") is True: booleans are spelt out
         options[k] = v.lower() in ("1", "true", "yes") if kind is bool else kind(v)
-    folder = Path(args.data)
-    if not folder.is_dir():
-        raise SystemExit(f"no dev set at {folder}")
+    folders = [Path(d) for d in (args.data or [str(DEV)])]
+    for folder in folders:
+        if not folder.is_dir():
+            raise SystemExit(f"no dev set at {folder}")
+    folder = folders[0]
     only = set(filter(None, args.only.split(",")))
-    pairs = [p for p in dev_pairs(folder) if not only or p[0] in only]
+    pairs = [p for f in folders for p in dev_pairs(f) if not only or p[0] in only]
     if args.degrade:
         pairs = [(n, degrade(im, args.degrade), t) for n, im, t in pairs]
     # warm up numba's cache so the first image is not charged for compilation
@@ -242,11 +285,17 @@ def main(argv=None):
         for m in args.methods.split(","):
             run_set(pairs, m, title="(shipped model)", **(options if m == "dp" else {}))
             time_at_4mp(pairs, m, **(options if m == "dp" else {}))
+        if "net" in args.methods.split(","):
+            peak_rss_4mp(pairs[0][1])
     if args.cv:
         sim_dirs = sorted(p for p in Path(args.cv_sim).iterdir() if p.is_dir()) if args.cv_sim else []
         models = loo_models(folder, [p[0] for p in pairs], sim_dirs,
                             grey="grey" in args.degrade.split(","))
         run_set(pairs, "dp", models=models, title="(leave-one-image-out sky model)", **options)
+    if args.cv_net:
+        from cv_net import run_cv_net
+
+        run_cv_net(pairs, Path(args.cv_net), write_calibration=args.write_calibration)
     if args.sim:
         for set_dir in sorted(p for p in Path(args.sim).iterdir() if p.is_dir()):
             sims = list(sim_pairs(set_dir))

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from .._io import PLOT_FORMATS, check_outputs, to_json
+from ..detect.options import DEFAULT_METHOD, METHODS
 from ..errors import ParameterError, SkyfixError
 
 
@@ -90,7 +91,7 @@ def plot_skyline(path, img, skyline):
 @click.argument("image", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--mask", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Mask image of the same size: non-zero where the image holds data.")
-@click.option("--method", type=click.Choice(["dp", "bayes"]), default="dp", show_default=True,
+@click.option("--method", type=click.Choice(METHODS), default=DEFAULT_METHOD, show_default=True,
               help="dp: dense-graph dynamic programming; bayes: iterative sky/ground likelihoods.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the skyline JSON here (default: stdout).")

@@ -7,6 +7,7 @@ import sys
 
 import click
 
+from ..detect.options import DEFAULT_METHOD, METHODS
 from .options import overwrite_option
 
 
@@ -53,7 +54,7 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
 @click.command("evaluate-detect")
 @click.option("--images", "images_dir", required=True, type=click.Path(file_okay=False),
               help="Folder of NAME.png with NAME.skyline.json truth (as ../shared/data/marsscapes-dev).")
-@click.option("--method", type=click.Choice(["dp", "bayes"]), default="dp", show_default=True)
+@click.option("--method", type=click.Choice(METHODS), default=DEFAULT_METHOD, show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, help="Write the table as CSV.")
 @overwrite_option
 def evaluate_detect(images_dir, method, output, overwrite):

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from ..detect.options import DEFAULT_METHOD, METHODS
+
 
 @click.command("profile")
 @click.argument("acq_dir", type=click.Path(path_type=Path))
@@ -14,7 +16,8 @@ import click
                    "(pointing unknown or poor). A panorama acquisition is read directly.")
 @click.option("--azimuth-bins", type=int, default=360, show_default=True,
               help="Bins over 360 deg; bin k is centred on k*360/n deg.")
-@click.option("--detector", default="dp", show_default=True, help="Skyline detection method.")
+@click.option("--detector", type=click.Choice(METHODS), default=DEFAULT_METHOD, show_default=True,
+              help="Skyline detection method.")
 @click.option("--no-refine", is_flag=True, help="Keep the nominal pan angles (project).")
 @click.option("-o", "--output", type=click.Path(path_type=Path), help="Profile JSON (default: stdout).")
 @click.option("--plot", type=click.Path(path_type=Path),

@@ -22,10 +22,12 @@ presets, checks), :mod:`.image` (validity, filling, downscaling shared by all), 
 ``shared/data/README.md``).
 """
 
-from .options import METHODS, MIN_HEIGHT_PX, MIN_WIDTH_PX, PRESETS, BayesOptions, DpOptions
+from .options import (DEFAULT_METHOD, METHODS, MIN_HEIGHT_PX, MIN_WIDTH_PX, PRESETS, BayesOptions, DpOptions,
+                      NetOptions)
 from .score import combine_scores, score_skyline, scored_columns
 from .skyline import detect_skyline
 from .skymodel import sky_log_odds
 
-__all__ = ["METHODS", "MIN_HEIGHT_PX", "MIN_WIDTH_PX", "PRESETS", "BayesOptions", "DpOptions",
+__all__ = ["DEFAULT_METHOD", "METHODS", "MIN_HEIGHT_PX", "MIN_WIDTH_PX", "PRESETS", "BayesOptions", "DpOptions",
+           "NetOptions",
            "combine_scores", "detect_skyline", "score_skyline", "scored_columns", "sky_log_odds"]

@@ -152,7 +152,7 @@ def detect_bayes(img, valid, opt: BayesOptions, model=None):
     hi_f[:-1] = np.fmax(hi_f[:-1], top_f[1:])
     lo_f[~np.isfinite(top_f)] = np.nan
     hi_f[~np.isfinite(top_f)] = np.nan
-    rows = refine_full(gray, valid, lo_f[full_cols], hi_f[full_cols], f, DpOptions())
+    rows = refine_full(gray, valid, lo_f[full_cols], hi_f[full_cols], f, DpOptions().refine_band)
     p_sky = 1 / (1 + np.exp(llr))
     conf_s = np.empty(w)
     for c in range(w):

@@ -127,7 +127,7 @@ def detect_dp(img, valid, opt: DpOptions, model=None):
     full_cols = np.minimum(np.arange(W) // f, w - 1)
     top_f = np.where(top >= 0, top * float(f), np.nan)[full_cols]
     bot_f = np.where(top >= 0, bottom * float(f), np.nan)[full_cols]
-    rows = refine_full(gray, valid, top_f, bot_f, f, opt)
+    rows = refine_full(gray, valid, top_f, bot_f, f, opt.refine_band)
     # confidence: edge strength at the chosen pixel times how sky-like the pixels above are
     conf_s = np.zeros(w)
     have = top >= 0

@@ -10,7 +10,9 @@ import numpy as np
 from ..errors import ParameterError
 
 
-METHODS = ("dp", "bayes")
+METHODS = ("dp", "bayes", "net")
+#: the method every caller uses unless told otherwise
+DEFAULT_METHOD = "dp"
 
 
 #: smallest image searched, width x height [px]
@@ -197,13 +199,53 @@ class BayesOptions:
     no_data_black: bool = True
 
 
-PRESETS = {"dp": DpOptions(), "bayes": BayesOptions()}
+@dataclass(frozen=True)
+class NetOptions:
+    """Options of the ``net`` detector (:mod:`skyfix.detect.net`; costs in nats).
+
+    net_pixels : the image is downscaled by an integer factor to at most this many pixels for the
+        network and the path [px]
+    flip : average the network's log-odds with its run on the mirrored image (halves the
+        variance of a small network's mistakes for twice the network time, ~20-60 ms)
+    llr_clip : per-pixel log-odds clipped to +-``llr_clip`` [nats], so a few confident mistakes
+        cannot dominate a column
+    none_cost : extra cost of the no-skyline state per column [nats]
+    switch_cost : cost of switching between skyline and no-skyline between columns [nats]
+    jump_cost : cost per row of change between neighbouring columns [nats]
+    vertical_cost : cost per pixel of a move within a column (steep sections) [nats]
+    min_sky_rows : a skyline needs at least this many valid working rows above it [working px]
+    refine_band : half-height of the full-resolution refinement band [working px]
+    conf_rows : working rows above and below the path whose probabilities make the confidence
+    min_confidence : a column whose calibrated confidence is below this is reported unknown
+    min_run, anchor_conf, anchor_gap, anchor_len : run hysteresis as in :class:`DpOptions`
+    """
+
+    net_pixels: int = 300_000
+    flip: bool = True
+    llr_clip: float = 8.0
+    none_cost: float = 2.0
+    switch_cost: float = 4.0
+    jump_cost: float = 0.3
+    vertical_cost: float = 0.5
+    min_sky_rows: int = 2
+    refine_band: float = 1.5
+    conf_rows: int = 6
+    min_confidence: float = 0.0
+    min_run: int = 0
+    anchor_conf: float = 0.0
+    anchor_gap: float = 0.02
+    anchor_len: float = 0.15
+    no_data_black: bool = True
+
+
+PRESETS = {"dp": DpOptions(), "bayes": BayesOptions(), "net": NetOptions()}
 
 
 # Ranges the options must lie in. The kernels do not check them, and most wrong values would give
 # a quiet nonsense answer rather than a crash (a negative weight rewards an edge-free skyline, a
 # gap of -0.1 links nothing), so they are refused up front, naming the option.
-_AT_LEAST_ONE = {"work_pixels", "model_pixels", "window", "max_iter", "n_train"}
+_AT_LEAST_ONE = {"work_pixels", "model_pixels", "window", "max_iter", "n_train", "net_pixels",
+                 "conf_rows"}
 
 
 _FRACTIONS = {"min_confidence", "anchor_conf", "anchor_gap", "anchor_len", "cloud_sure_share",

@@ -9,7 +9,6 @@ import math
 import numba
 import numpy as np
 
-from .options import DpOptions
 from .path import BIG, solve_path
 
 
@@ -34,7 +33,7 @@ def vertical_step(gray):
     return step
 
 
-def refine_full(gray, valid, top_full, bottom_full, f, opt: DpOptions):
+def refine_full(gray, valid, top_full, bottom_full, f, refine_band: float):
     """Full-resolution rows from the working-scale path: a DP on the vertical intensity step.
 
     top_full, bottom_full (W,): full-resolution rows [px] spanned by the working-scale path in
@@ -50,7 +49,7 @@ def refine_full(gray, valid, top_full, bottom_full, f, opt: DpOptions):
         return out
     step = vertical_step(gray)  # the skyline is at r when the step into r is large
     ok = skyline_allowed(valid)
-    m = int(math.ceil(opt.refine_band * f)) + 1
+    m = int(math.ceil(refine_band * f)) + 1
     a = np.where(have, np.floor(np.nan_to_num(top_full)) - m, 0).astype(np.int64)
     b = np.where(have, np.ceil(np.nan_to_num(bottom_full)) + f - 1 + m, -1).astype(np.int64)
     a = np.clip(a, 0, H - 1)

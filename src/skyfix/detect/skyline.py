@@ -10,24 +10,26 @@ from ..formats import Skyline
 from .bayes import detect_bayes
 from .dp import detect_dp
 from .image import as_gray_rgb, is_grey_rgb, valid_mask
-from .options import METHODS, PRESETS, check_options
+from .net import detect_net
+from .options import DEFAULT_METHOD, METHODS, PRESETS, check_options
 
 #: method name -> detector(img, valid, options, model) -> (rows, confidence, column validity);
 #: a new detector enters here and in :data:`skyfix.detect.options.PRESETS`
-DETECTORS = {"dp": detect_dp, "bayes": detect_bayes}
+DETECTORS = {"dp": detect_dp, "bayes": detect_bayes, "net": detect_net}
 
 
-def detect_skyline(image, *, mask=None, method: str = "dp", name: str = "", model=None,
+def detect_skyline(image, *, mask=None, method: str = DEFAULT_METHOD, name: str = "", model=None,
                    **options) -> Skyline:
     """The skyline of one image.
 
     image : H x W x 3 RGB (uint8, uint16 or float in [0, 1]) or H x W grey
     mask : optional bool H x W, True where the image holds valid data
-    method : ``"dp"`` (default) or ``"bayes"``
+    method : one of :data:`METHODS` (default :data:`DEFAULT_METHOD`)
     name : image name written into the result
-    model : the sky classifier (:class:`skyfix.skymodel.SkyModel` or a path to one); None = the
-        shipped model ``skyfix/models/sky_hgb.npz``
-    options : fields of :class:`DpOptions` / :class:`BayesOptions` to override
+    model : the method's learned model or a path to one (``dp``, ``bayes``: the sky classifier
+        :class:`skyfix.detect.skymodel.SkyModel`; ``net``: :class:`skyfix.detect.net.SkyNet`);
+        None = the shipped one
+    options : fields of :class:`DpOptions` / :class:`BayesOptions` / :class:`NetOptions` to override
 
     Returns a :class:`Skyline`: ``rows`` [px, 0-based, first terrain row below the sky] with NaN
     where no skyline is visible, ``confidence`` in [0, 1], ``valid`` = columns with any valid

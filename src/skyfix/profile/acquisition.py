@@ -23,7 +23,7 @@ METHODS = ("project", "stitch")
 
 
 def acquisition_profile(acq: Acquisition, *, method: str = "project", azimuth_bins: int = 360,
-                        detector: str | Detector = "dp", skylines: Sequence[Skyline | None] | None = None,
+                        detector: str | Detector | None = None, skylines: Sequence[Skyline | None] | None = None,
                         refine: PanRefinement = DEFAULT_REFINEMENT) -> Profile:
     """The body-frame angular profile of an acquisition.
 

@@ -38,19 +38,22 @@ def read_rgb(path) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
-def get_detector(detector: str | Detector) -> Detector:
-    """A detector callable ``(rgb, mask=None) -> Skyline`` from a method name or a callable."""
+def get_detector(detector: str | Detector | None = None) -> Detector:
+    """A detector callable ``(rgb, mask=None) -> Skyline`` from a method name (None: the
+    default method of :mod:`skyfix.detect`) or a callable."""
     if callable(detector):
         return detector
-    from ..detect import detect_skyline  # the sibling stage; imported only when detecting
+    from ..detect import DEFAULT_METHOD, detect_skyline  # the sibling stage; only when detecting
+
+    method = detector or DEFAULT_METHOD
 
     def run(image, mask=None):
-        return detect_skyline(image, mask=mask, method=detector)
+        return detect_skyline(image, mask=mask, method=method)
 
     return run
 
 
-def detect_frames(acq: Acquisition, detector: str | Detector = "dp") -> list[Skyline | None]:
+def detect_frames(acq: Acquisition, detector: str | Detector | None = None) -> list[Skyline | None]:
     """Detect the skyline in every frame; a frame whose detection raises DetectionError is None."""
     det = get_detector(detector)
     out: list[Skyline | None] = []

@@ -262,7 +262,7 @@ def _composite(warper, K, images, rotations):
     return pano, valid, (x0, y0)
 
 
-def stitched_profile(acq: Acquisition, *, azimuth_bins: int = 360, detector: str | Detector = "dp",
+def stitched_profile(acq: Acquisition, *, azimuth_bins: int = 360, detector: str | Detector | None = None,
                      images: list[np.ndarray] | None = None) -> Profile:
     """Profile of a frame set by stitching, then detecting once on the panorama."""
     pano, valid, spec, info = stitch_panorama(acq, images)

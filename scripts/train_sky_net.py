@@ -1,0 +1,378 @@
+"""Train the ``net`` detector's sky/terrain segmentation network (``skyfix/models/sky_net.onnx``).
+
+    pip install -e ".[train]"            # PyTorch (CPU) and onnx: training only
+    scripts/make_sky_sims.sh SIMS        # simulated frames (seeds 901-905, never used to evaluate)
+    python scripts/train_sky_net.py --sims SIMS --out src/skyfix/models/sky_net.onnx --overwrite
+    python scripts/train_sky_net.py --sims SIMS --folds 5 --fold K --out CV/fold_K.onnx   # held out
+
+Data: every labelled image of the two dev sets in ``../shared/data`` (``marsscapes-dev``: sky from
+the label image, RGB (34, 56, 19), the no-data border ignored; ``web-dev``: sky above the drawn
+skyline, columns without one ignored) and the simulated frames of ``--sims`` (sky above each
+column's visible skyline; columns without one ignored). With ``--fold K`` the images of fold K
+are left out: folds group a Mars mosaic by its sol (the number before ``_``: near-duplicate
+mosaics of one site never sit on both sides) and an Earth photo by itself, and deal the sorted
+groups round-robin (:func:`folds`); simulated frames are never held out (they are not dev
+images). ``benchmarks/bench_detect.py --cv-net DIR`` scores each image with the model that did
+not see it and writes the confidence calibration.
+
+Recipe (the shipped model): 1600 steps of AdamW (one-cycle, peak lr 3e-3, weight decay 1e-4),
+batches of 8 crops of 256 x 352 working pixels, seed 0; an image is drawn with probability
+0.45 Mars, 0.35 Earth, 0.2 simulated (Mars mosaics without sky twice as often as the others);
+each crop is taken at the detector's working scale times exp(U(-0.45, 0.45)), from the top of the
+image half of the time, flipped left-right half of the time, rolled by up to 6 deg 30 % of the
+time, then degraded at full resolution: grey (20 %), white balance x U(0.75, 1.25) per channel
+(80 %), exposure x U(0.5, 1.7) and gamma U(0.65, 1.5) (80 %), a veil of haze of 10-50 % (25 %),
+blur (30 %), noise (30 %), JPEG quality 30-95 (30 %); loss: cross-entropy on labelled pixels,
+three times the weight within 2 working pixels of a sky/terrain boundary. About 25 minutes on
+two cores. The network (:class:`SkyNetModel`): a U-Net of 16-32-48-64 channels with two dilated
+convolutions (8, 16) at 1/16 scale, 0.3 M parameters, 1.2 MB as ONNX.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+SKY_RGB = (34, 56, 19)
+CROP = (224, 320)  # working pixels (h, w)
+
+
+# --- data -------------------------------------------------------------------------------------------
+
+def _read_rgb(path):
+    import cv2
+
+    im = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if im is None:
+        raise SystemExit(f"cannot read {path}")
+    return cv2.cvtColor(im, cv2.COLOR_BGR2RGB)
+
+
+def _rows_label(h, rows):
+    """(h, W) uint8 labels from a skyline's rows: 1 sky above the row, 0 terrain, 255 unknown
+    (columns without a row)."""
+    rows = np.array([np.nan if r is None else r for r in rows], float)
+    y = np.full((h, rows.size), 255, np.uint8)
+    have = np.isfinite(rows)
+    lab = (np.arange(h)[:, None] < rows[None, :]).astype(np.uint8)
+    y[:, have] = lab[:, have]
+    return y
+
+
+def mars_images(folder):
+    """(name, group, kind, RGB image, labels) for each labelled mosaic."""
+    for lab_path in sorted(Path(folder).glob("*_label.png")):
+        name = lab_path.name[: -len("_label.png")]
+        img = _read_rgb(lab_path.with_name(name + ".png"))
+        lab = _read_rgb(lab_path)
+        sky = np.all(lab == np.array(SKY_RGB, np.uint8), axis=2)
+        y = np.where(img.any(axis=2), sky.astype(np.uint8), 255).astype(np.uint8)
+        yield name, "mars:" + name.split("_")[0], "mars", img, y
+
+
+def web_images(folder):
+    for tp in sorted(Path(folder).glob("*.skyline.json")):
+        name = tp.name[: -len(".skyline.json")]
+        img = _read_rgb(tp.with_name(name + ".png"))
+        y = _rows_label(img.shape[0], json.loads(tp.read_text())["rows"])
+        y[~img.any(axis=2)] = 255
+        yield name, "web:" + name, "web", img, y
+
+
+def sim_images(folder, max_frames=60):
+    frames = []
+    for png in sorted(Path(folder).rglob("*.png")):
+        vis = png.with_name(png.stem + ".visible.skyline.json")
+        truth = vis if vis.exists() else png.with_name(png.stem + ".skyline.json")
+        if truth.exists():
+            frames.append((png, truth))
+    if len(frames) > max_frames:
+        frames = [frames[i] for i in np.linspace(0, len(frames) - 1, max_frames).round().astype(int)]
+    for png, truth in frames:
+        rows = json.loads(truth.read_text())["rows"]
+        if any(r is not None for r in rows):
+            img = _read_rgb(png)
+            yield str(png), "sim", "sim", img, _rows_label(img.shape[0], rows)
+
+
+def folds(groups, k):
+    """Fold per group name: Mars sols (``mars:SOL``) and Earth photos (``web:NAME``) sorted (sols
+    numerically) and dealt round-robin, so every group sits in one fold and neighbouring sols
+    spread over the folds; anything else (simulated frames) -1, never held out."""
+    out = {}
+    for kind in ("mars", "web"):
+        gs = sorted({g for g in groups if g.startswith(kind + ":")},
+                    key=lambda g: (int(g.split(":")[1]) if kind == "mars" else g))
+        out.update({g: i % k for i, g in enumerate(gs)})
+    return {g: out.get(g, -1) for g in groups}
+
+
+# --- augmentation ---------------------------------------------------------------------------------
+
+def _photometric(x, rng, scale):
+    """Degradations at full resolution on float RGB in [0, 1]; blur in full-resolution pixels."""
+    import cv2
+
+    if rng.random() < 0.2:
+        x = np.repeat((x @ np.array([0.299, 0.587, 0.114], np.float32))[..., None], 3, axis=2)
+    if rng.random() < 0.8:
+        x = x * rng.uniform(0.75, 1.25, 3).astype(np.float32)
+    if rng.random() < 0.8:
+        x = np.clip(x * rng.uniform(0.5, 1.7), 0, 1) ** rng.uniform(0.65, 1.5)
+    if rng.random() < 0.25:
+        a = rng.uniform(0.1, 0.5)
+        x = (1 - a) * x + a * rng.uniform(0.4, 0.9, 3).astype(np.float32)
+    if rng.random() < 0.3:
+        x = cv2.GaussianBlur(x, (0, 0), rng.uniform(0.3, 1.5) * 0.4 / max(scale, 0.2))
+    if rng.random() < 0.3:
+        x = x + rng.normal(0, rng.uniform(0.003, 0.03), x.shape).astype(np.float32)
+    x = np.clip(x, 0, 1).astype(np.float32)
+    if rng.random() < 0.3:
+        ok, buf = cv2.imencode(".jpg", (x[..., ::-1] * 255).astype(np.uint8),
+                               [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(30, 95))])
+        x = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1].astype(np.float32) / 255.0
+    return np.ascontiguousarray(x)
+
+
+def sample(img, y, rng, crop=CROP):
+    """One training crop: (x (CHANNELS, h, w) float32, labels (h, w) uint8, 255 = ignore)."""
+    import cv2
+
+    from skyfix.detect.image import downscale_factor, trusted
+    from skyfix.detect.net import CHANNELS, net_input
+    from skyfix.detect.options import NetOptions
+
+    H, W = y.shape
+    s = math.exp(rng.uniform(-0.45, 0.45)) / downscale_factor(H, W, NetOptions().net_pixels)
+    if rng.random() < 0.3:
+        m = cv2.getRotationMatrix2D((W / 2, H / 2), rng.uniform(-6, 6), 1.0)
+        img = cv2.warpAffine(img, m, (W, H), flags=cv2.INTER_LINEAR, borderValue=0)
+        y = cv2.warpAffine(y, m, (W, H), flags=cv2.INTER_NEAREST, borderValue=255)
+    if rng.random() < 0.5:
+        img, y = img[:, ::-1], y[:, ::-1]
+    ch, cw = crop
+    fh, fw = int(round(ch / s)), int(round(cw / s))
+    y0 = 0 if rng.random() < 0.5 else int(rng.integers(0, max(1, H - fh + 1)))
+    x0 = int(rng.integers(0, max(1, W - fw + 1)))
+    sub = np.ascontiguousarray(img[y0:y0 + fh, x0:x0 + fw])
+    suby = np.ascontiguousarray(y[y0:y0 + fh, x0:x0 + fw])
+    h, w = max(8, int(round(sub.shape[0] * s))), max(8, int(round(sub.shape[1] * s)))
+    valid = sub.any(axis=2)
+    xf = _photometric(sub.astype(np.float32) / 255.0, rng, s)
+    xf[~valid] = 0.0
+    x, v = net_input(xf, trusted(valid), (w, h))
+    lab = np.where(v, cv2.resize(suby, (w, h), interpolation=cv2.INTER_NEAREST), 255)
+    X = np.zeros((CHANNELS, ch, cw), np.float32)
+    Y = np.full((ch, cw), 255, np.uint8)
+    hh, ww = min(h, ch), min(w, cw)
+    X[:, :hh, :ww] = x[:, :hh, :ww]
+    Y[:hh, :ww] = lab[:hh, :ww]
+    return X, Y
+
+
+# --- the network ----------------------------------------------------------------------------------
+
+def build_model():
+    """The segmentation network (PyTorch); only operations OpenCV's ``dnn`` runs (no broadcast
+    add of a reduced tensor: OpenCV 4.x cannot infer its shape with dynamic input sizes)."""
+    import torch
+    import torch.nn as nn
+    import torch.nn.functional as F
+
+    from skyfix.detect.net import CHANNELS
+
+    def cbr(cin, cout, stride=1, dil=1):
+        return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, padding=dil, dilation=dil, bias=False),
+                             nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+
+    class SkyNetModel(nn.Module):
+        def __init__(self, c=(16, 32, 48, 64)):
+            super().__init__()
+            c0, c1, c2, c3 = c
+            self.e0 = nn.Sequential(cbr(CHANNELS, c0, 2), cbr(c0, c0))
+            self.e1 = nn.Sequential(cbr(c0, c1, 2), cbr(c1, c1))
+            self.e2 = nn.Sequential(cbr(c1, c2, 2), cbr(c2, c2))
+            self.e3 = nn.Sequential(cbr(c2, c3, 2), cbr(c3, c3, dil=2), cbr(c3, c3, dil=4))
+            # what lies above, below and beside, at 1/16 scale: a smooth band is sky only where
+            # nothing lies behind it
+            self.ctx = nn.Sequential(cbr(c3, c3, dil=8), cbr(c3, c3, dil=16))
+            self.d2 = cbr(c3 + c2, c2)
+            self.d1 = cbr(c2 + c1, c1)
+            self.d0 = cbr(c1 + c0, c0)
+            self.head = nn.Conv2d(c0, 1, 1)
+
+        def forward(self, x):
+            def up(t):
+                return F.interpolate(t, scale_factor=2.0, mode="bilinear", align_corners=False)
+
+            e0 = self.e0(x)
+            e1 = self.e1(e0)
+            e2 = self.e2(e1)
+            e3 = self.ctx(self.e3(e2))
+            d = self.d2(torch.cat([up(e3), e2], 1))
+            d = self.d1(torch.cat([up(d), e1], 1))
+            d = self.d0(torch.cat([up(d), e0], 1))
+            return up(self.head(d))
+
+    return SkyNetModel()
+
+
+def loss_fn(logit, y):
+    """Cross-entropy on labelled pixels, 3x the weight where a 5 x 5 window holds both labels."""
+    import torch
+    import torch.nn.functional as F
+
+    known = y != 255
+    k = torch.ones(1, 1, 5, 5)
+    sky = F.conv2d(((y == 1) & known).float()[:, None], k, padding=2)
+    ter = F.conv2d(((y == 0) & known).float()[:, None], k, padding=2)
+    wgt = (1.0 + 2.0 * ((sky > 0) & (ter > 0)).float()[:, 0]) * known.float()
+    loss = F.binary_cross_entropy_with_logits(logit[:, 0], (y == 1).float(), reduction="none")
+    return (loss * wgt).sum() / wgt.sum().clamp(min=1)
+
+
+def train(images, *, steps, seed, batch=8, lr=3e-3, weights=(0.45, 0.35, 0.2), nosky_boost=2.0,
+          log=sys.stderr):
+    import torch
+
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    net = build_model()
+    opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.1)
+    kinds = np.array([im[2] for im in images])
+    p = np.zeros(len(images))
+    for kind, w in zip(("mars", "web", "sim"), weights):
+        if (kinds == kind).any():
+            p[kinds == kind] = w / (kinds == kind).sum()
+    nosky = np.array([im[2] == "mars" and not (im[4] == 1).any() for im in images])
+    p[nosky] *= nosky_boost
+    p /= p.sum()
+    t0, run = time.time(), None
+    net.train()
+    for step in range(steps):
+        xs, ys = zip(*(sample(images[i][3], images[i][4], rng) for i in rng.choice(len(images), batch, p=p)))
+        loss = loss_fn(net(torch.from_numpy(np.stack(xs))), torch.from_numpy(np.stack(ys)))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        run = loss.item() if run is None else 0.98 * run + 0.02 * loss.item()
+        if step % 100 == 0 or step == steps - 1:
+            print(f"step {step}: loss {run:.4f} ({time.time() - t0:.0f} s)", file=log, flush=True)
+    return net.eval()
+
+
+def export(net, out: Path, meta: dict) -> None:
+    """ONNX (opset 13, dynamic height and width) plus ``meta`` as JSON beside it, both atomic."""
+    import torch
+
+    from skyfix._io import atomic_path, write_json
+    from skyfix.detect.net import CHANNELS
+
+    with atomic_path(out, suffix=".onnx") as tmp:
+        torch.onnx.export(net, torch.zeros(1, CHANNELS, 512, 1024), str(tmp), input_names=["x"],
+                          output_names=["logit"], opset_version=13, dynamo=False,
+                          dynamic_axes={"x": {2: "h", 3: "w"}, "logit": {2: "h", 3: "w"}})
+    write_json(out.with_suffix(".json"), meta)
+
+
+def join(members, out: Path, meta: dict) -> None:
+    """One ONNX graph running every member network on the input, their log-odds stacked as output
+    channels (the detector averages them). OpenCV's ``dnn`` runs a channel concatenation with
+    dynamic sizes where it cannot run an element-wise sum."""
+    import torch
+    import torch.nn as nn
+
+    class Ensemble(nn.Module):
+        def __init__(self, nets):
+            super().__init__()
+            self.nets = nn.ModuleList(nets)
+
+        def forward(self, x):
+            return torch.cat([n(x) for n in self.nets], 1)
+
+    nets = []
+    for path in members:
+        net = build_model()
+        net.load_state_dict(torch.load(path, map_location="cpu"))
+        nets.append(net.eval())
+    export(Ensemble(nets).eval(), out, meta)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--mars", default=str(DATA / "marsscapes-dev"))
+    ap.add_argument("--web", default=str(DATA / "web-dev"))
+    ap.add_argument("--sims", action="append", default=[], help="folder of simulated frames (repeatable)")
+    ap.add_argument("--out", default=str(ROOT / "src" / "skyfix" / "models" / "sky_net.onnx"))
+    ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--steps", type=int, default=1400)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument("--fold", type=int, default=-1, help="leave this fold out (-1: train on all)")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--ensemble", nargs="+", default=[], metavar="FOLD.pt",
+                    help="join these trained members (fold_K.pt) into --out instead of training")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    if out.exists() and not args.overwrite:
+        raise SystemExit(f"{out} exists: pass --overwrite to replace it")
+    if not out.parent.is_dir():
+        raise SystemExit(f"no folder {out.parent}")
+    try:
+        import torch
+    except ImportError:
+        raise SystemExit("training needs PyTorch: pip install -e \".[train]\"") from None
+    torch.set_num_threads(args.threads)
+    if args.ensemble:
+        members = [Path(p) for p in args.ensemble]
+        metas = [json.loads(p.with_suffix(".json").read_text()) for p in members]
+        meta = {"channels": 5, "members": [p.stem for p in members],
+                "held_out_by_member": {p.stem: m.get("held_out", []) for p, m in zip(members, metas)},
+                "steps": metas[0].get("steps"), "seed": metas[0].get("seed"),
+                "sims": metas[0].get("sims"), "torch": torch.__version__}
+        old = out.with_suffix(".json")
+        if old.is_file() and json.loads(old.read_text()).get("calibration"):
+            meta["calibration"] = json.loads(old.read_text())["calibration"]
+        join(members, out, meta)
+        print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB), {len(members)} members", file=sys.stderr)
+        return
+    images = list(mars_images(args.mars)) + list(web_images(args.web))
+    for s in args.sims:
+        images += list(sim_images(s))
+    if not images:
+        raise SystemExit("no labelled images found")
+    fold_of = folds({im[1] for im in images}, args.folds)
+    train_set = [im for im in images if args.fold < 0 or fold_of[im[1]] != args.fold]
+    held = sorted(im[0] for im in images if args.fold >= 0 and fold_of[im[1]] == args.fold)
+    print(f"training on {len(train_set)} of {len(images)} images"
+          + (f"; fold {args.fold} of {args.folds} held out: {', '.join(held)}" if held else ""),
+          file=sys.stderr)
+    t0 = time.time()
+    net = train(train_set, steps=args.steps, seed=args.seed)
+    meta = {"channels": 5, "steps": args.steps, "seed": args.seed, "folds": args.folds,
+            "fold": args.fold, "held_out": held, "sims": [Path(s).name for s in args.sims],
+            "trained_on": len(train_set), "train_seconds": round(time.time() - t0),
+            "torch": torch.__version__}
+    old = out.with_suffix(".json")
+    if old.is_file():  # keep a calibration written earlier for this model's recipe
+        cal = json.loads(old.read_text()).get("calibration")
+        if cal and args.fold < 0:
+            meta["calibration"] = cal
+    export(net, out, meta)
+    # the weights too, so that fold models can later be joined into the shipped ensemble
+    torch.save(net.state_dict(), out.with_suffix(".pt"))
+    print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB) in {time.time() - t0:.0f} s", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
