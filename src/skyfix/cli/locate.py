@@ -45,6 +45,37 @@ def _read_profile(acq_dir, profile_path):
     return prof, acq.prior_pitch_deg, acq.prior_roll_deg, acq.camera_height_m
 
 
+def _check_db_dem(db, dem, db_path, dem_path, force) -> list[str]:
+    """Refuse a DEM other than the database's (its checksum is in the database), unless forced;
+    returns the notes the fix then carries."""
+    if db is None or dem is None or not getattr(db, "dem_sha256", ""):
+        return []
+    if dem.checksum == db.dem_sha256:
+        return []
+    msg = (f"--dem {dem_path} (sha256 {dem.checksum[:12]}...) is not the DEM the database {db_path} "
+           f"was built from (sha256 {db.dem_sha256[:12]}..., {(db.attrs.get('dem') or {}).get('source', 'source not recorded')})")
+    if not force:
+        raise ParameterError(msg + ": give that DEM, rebuild the database from this one, or pass "
+                                   "--force to refine on it anyway")
+    click.echo(f"warning: {msg}; going on (--force)", err=True)
+    return [msg + " (--force)"]
+
+
+def _check_camera_height(db, db_path, cam_h) -> list[str]:
+    """Warn when the acquisition's camera height differs from the database's: the refinement
+    renders at the acquisition's; the database search saw the other (the sigma is widened)."""
+    if db is None or cam_h is None:
+        return []
+    built = float(db.camera_height_m)
+    if abs(float(cam_h) - built) <= 0.05:
+        return []
+    msg = (f"the acquisition's camera is {float(cam_h):g} m above the ground, the database {db_path} "
+           f"was built for {built:g} m: the search compares skylines seen from another height "
+           "(refinement uses the acquisition's; the position sigma is widened by the difference)")
+    click.echo("warning: " + msg, err=True)
+    return [msg]
+
+
 def _write_outputs(fix, out, geojson):
     """The fix as JSON (``out``, else stdout) and GeoJSON; paths checked before any work."""
     from .._io import to_json, write_json
@@ -148,8 +179,10 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
 @click.option("--preset", type=click.Choice(["fast", "exact", "level"]), default="fast",
               show_default=True, help="Matcher preset.")
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
+@click.option("--force", is_flag=True,
+              help="Use a --dem other than the one the database was built from (the fix says so).")
 def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_radius_m, out,
-           geojson, score_map, plot, preset, overwrite):
+           geojson, score_map, plot, preset, overwrite, force):
     """Find position, heading and attitude from an acquisition (or a profile)."""
     import math
 
@@ -175,10 +208,8 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_rad
         raise ParameterError("--score-map needs --db (the map is the database's score)")
     check_outputs(overwrite, ("--output", out, None), ("--geojson", geojson, None),
                   ("--score-map", score_map, GEOTIFF_SUFFIXES), ("--plot", plot, PLOT_FORMATS))
-    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path)
-    from ..match import PRESETS
-    from ..pose import PoseConfig, locate as _locate
-
+    # The database and the DEM are opened and checked against each other, and the acquisition's
+    # description read, before any image is (detection is the long part).
     db = dem = None
     if db_path is not None:
         from ..database import open_database
@@ -188,11 +219,23 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_rad
         from ..dem import load_dem
 
         dem = load_dem(dem_path)
+    notes = _check_db_dem(db, dem, db_path, dem_path, force)
+    if acq_dir is not None:
+        from ..formats import load_acquisition
+
+        cam_h_declared = load_acquisition(acq_dir).camera_height_m
+        notes += _check_camera_height(db, db_path, cam_h_declared)
+    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path)
+    if profile_path is not None:
+        notes += _check_camera_height(db, db_path, cam_h)
+    from ..match import PRESETS
+    from ..pose import PoseConfig, locate as _locate
+
     prior = (prior_x, prior_y) if prior_x is not None else None
     fix, mres = _locate(prof, db=db, dem=dem, prior_xy=prior, prior_radius_m=prior_radius_m,
-                        prior_pitch_deg=pp, prior_roll_deg=pr,
-                        camera_height_m=None if db is not None else cam_h,
-                        config=PoseConfig(match=PRESETS[preset]), return_match=True)
+                        prior_pitch_deg=pp, prior_roll_deg=pr, camera_height_m=cam_h,
+                        config=PoseConfig(match=PRESETS[preset]), return_match=True,
+                        notes=tuple(notes))
     _write_outputs(fix, out, geojson)
     if score_map is not None:
         _write_score_map(score_map, mres, db)

@@ -14,8 +14,10 @@ class Fix:
     meridian convergence (``heading_deg - grid_heading_deg``; NaN, and ``heading_deg`` the grid
     heading, where the CRS does not say where true north is), pitch/roll [deg], 1-sigma position
     [m] and heading [deg], calibrated ``confidence``, ``score`` (mean squared residual [deg^2],
-    clipped per bin at max(3 noise, 0.5 deg) after refinement) and the top candidates (their
-    headings from true north too)."""
+    clipped per bin at max(3 noise, 0.5 deg) after refinement), the top candidates (their
+    headings from true north too) and ``notes``: what the user must know to read it (a
+    confidence capped by a degenerate search, a forced DEM, a camera-height mismatch, quantities
+    echoed rather than estimated)."""
 
     x: float
     y: float
@@ -33,10 +35,12 @@ class Fix:
     score: float
     candidates: tuple = ()
     features: dict = field(default_factory=dict, compare=False)
+    notes: tuple = ()
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["candidates"] = [dict(c) for c in self.candidates]
+        d["notes"] = list(self.notes)
         d.pop("features")
         return d
 

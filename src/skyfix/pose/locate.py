@@ -42,6 +42,45 @@ from .refine import inside_dem, prior_grid, refine_candidates
 from .scoring import clipped_costs, profile_arrays, render_points, robust_scores
 
 
+#: the most confidence a degenerate search may report (:func:`degenerate_search`)
+DEGENERATE_CAP = 0.45
+#: fewer database positions than this in the searched area is a degenerate search
+MIN_SEARCHED_POSITIONS = 49
+
+
+def degenerate_search(db, dem, x, y, prior_xy, prior_radius_m, tolerance_m, grid_step_m):
+    """Why a search cannot support a confident answer, whatever its scores say (a list of
+    reasons, empty when none): a handful of positions searched, the answer on the edge of the
+    searched area (the truth may lie beyond it), or a grid far coarser than the accuracy asked
+    with no DEM to refine on. Positions [m]."""
+    reasons = []
+    if db is not None:
+        xs, ys = np.asarray(db.x_coords, float), np.asarray(db.y_coords, float)
+        gx, gy = np.meshgrid(xs, ys)
+        inside = np.ones(gx.shape, bool)
+        if prior_xy is not None and prior_radius_m is not None:
+            inside = np.hypot(gx - prior_xy[0], gy - prior_xy[1]) <= prior_radius_m
+        n = int(inside.sum())
+        if n < MIN_SEARCHED_POSITIONS:
+            reasons.append(f"only {n} database position{'s' * (n != 1)} searched (fewer than "
+                           f"{MIN_SEARCHED_POSITIONS})")
+        step = float(db.spacing_m)
+        if dem is None and step > 2.0 * tolerance_m:
+            reasons.append(f"database grid of {step:g} m against an accuracy of {tolerance_m:g} m, "
+                           "with no DEM to refine on")
+        lo_x, hi_x, lo_y, hi_y = xs.min(), xs.max(), ys.min(), ys.max()
+        edge = min(x - lo_x if xs.size > 1 else np.inf, hi_x - x if xs.size > 1 else np.inf,
+                   y - lo_y if ys.size > 1 else np.inf, hi_y - y if ys.size > 1 else np.inf)
+    else:
+        step, edge = float(grid_step_m), np.inf
+    if prior_xy is not None and prior_radius_m is not None:
+        edge = min(edge, prior_radius_m - math.hypot(x - prior_xy[0], y - prior_xy[1]))
+    if edge < step:
+        reasons.append(f"the answer lies within one grid step ({step:g} m) of the searched "
+                       "area's edge: the rover may be outside it")
+    return reasons
+
+
 def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg, model, key):
     """The best refined result, its uncertainties and confidence. results: refined dicts sorted
     by cost; rest: unrefined candidates (x, y, score, heading); sep [m]: how far another answer
@@ -86,7 +125,7 @@ def _segment_candidates(db, q, config, known, *, prior_xy=None, prior_radius_m=N
 def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
            prior_pitch_deg: float = 0.0, prior_roll_deg: float = 0.0,
            camera_height_m: float | None = None, planet=None, config: PoseConfig = PoseConfig(),
-           model: dict | None = None, return_match: bool = False):
+           model: dict | None = None, return_match: bool = False, notes: tuple = ()):
     """Position, heading and attitude from a body-frame profile.
 
     profile : :class:`skyfix.formats.Profile` (frame ``body``, levelled with the attitude prior)
@@ -94,6 +133,11 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     dem : the DEM the database was built from; needed to refine (and without a database)
     prior_xy, prior_radius_m : [m] search disc (required without a database)
     prior_pitch_deg, prior_roll_deg : [deg] the attitude prior the profile was levelled with
+    camera_height_m : [m] the camera above the DEM surface (default: the database's, else the
+        profile's, else 1.5); refinement renders at it. When it differs from the database's, the
+        database search compared skylines seen from another height: the position sigma is widened
+        by the difference (added in quadrature) and a note says so
+    notes : what the caller already knows the fix should say (a forced DEM, ...)
     Returns a :class:`Fix` (and the :class:`skyfix.match.MatchResult` with ``return_match``).
     """
     if getattr(profile, "frame", "body") not in ("body", None):
@@ -112,6 +156,9 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     if camera_height_m is None:
         camera_height_m = float(getattr(db, "camera_height_m", None) or
                                 profile.meta.get("camera_height_m", 1.5))
+    camera_height_m = float(camera_height_m)
+    db_height = float(getattr(db, "camera_height_m", camera_height_m) or camera_height_m)
+    height_gap = abs(camera_height_m - db_height) if db is not None else 0.0
     if planet is None:
         planet = getattr(db, "planet", None) or "earth"
         if isinstance(planet, dict):
@@ -187,6 +234,18 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         feat = confidence_features(best_s, other, rms, noise, relief, float(np.isfinite(q).mean()),
                                    psig, tilt)
         conf = structureless_cap(confidence_from_features(feat, model, "locate"), relief, noise)
+    notes = list(notes)
+    degenerate = degenerate_search(db, dem, fx, fy, prior_xy, prior_radius_m,
+                                   config.tolerance_m if db is not None else 1.0,
+                                   config.grid_step_m)
+    if degenerate:
+        conf = min(conf, DEGENERATE_CAP)
+        notes += [f"confidence capped at {DEGENERATE_CAP}: {r}" for r in degenerate]
+    if height_gap > 0:
+        psig = math.hypot(psig, height_gap)
+    if dem is None:
+        notes.append("pitch_deg and roll_deg are the attitude prior echoed (no --dem to estimate "
+                     "them); heading and position come from the database grid")
     crs, lon, lat = crs_and_lonlat(crs_wkt, fx, fy)
     conv = meridian_convergence_deg(crs_wkt, fx, fy)
     for c in cand_out:  # candidates are read like the fix: headings from true north
@@ -197,5 +256,5 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
               heading_deg=true_heading_deg(grid, conv), grid_heading_deg=grid,
               meridian_convergence_deg=conv, pitch_deg=float(pitch), roll_deg=float(roll),
               position_sigma_m=float(psig), heading_sigma_deg=float(hsig), confidence=conf,
-              score=float(best_s), candidates=tuple(cand_out), features=feat)
+              score=float(best_s), candidates=tuple(cand_out), features=feat, notes=tuple(notes))
     return (fix, mres) if return_match else fix

@@ -1,0 +1,149 @@
+"""A fix says "I don't know" where the search cannot know, and mismatches between the database, the
+DEM and the acquisition are refused or reported before any image is read."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from skyfix.cli.main import cli
+from skyfix.database import build_database, open_database
+from skyfix.dem import Dem, write_dem
+from skyfix.formats import write_profile_json
+from skyfix.pose import locate, synthetic_profile
+
+CELL = 10.0
+
+
+def _z(x, y):
+    return (100 + 0.05 * y + 60 * np.exp(-((x - 150) ** 2 + (y - 650) ** 2) / 80**2)
+            + 40 * np.exp(-((x - 700) ** 2 + (y - 200) ** 2) / 60**2)
+            + 25 * np.sin(x / 70.0) * np.cos(y / 90.0))
+
+
+def _dem(shift=0.0):
+    n = 81
+    x = np.arange(n) * CELL
+    y = (n - 1 - np.arange(n)) * CELL
+    return Dem.from_array(_z(x[None, :] + shift, y[:, None]), CELL)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("maps")
+    dem_path = write_dem(d / "map.tif", _dem())
+    other = write_dem(d / "other.tif", _dem(shift=35.0))
+    db = d / "db.zarr"
+    build_database(dem_path, db, (300, 300, 500, 500), 10, workers=0, progress=False,
+                   azimuth_bins=180, block=8)
+    return dem_path, other, db
+
+
+def _profile(dem, x=412.0, y=387.0, heading=40.0, **kw):
+    return synthetic_profile(dem, x, y, heading, noise_deg=0.03, rng=2, n_bins=180, **kw)
+
+
+@pytest.mark.parametrize("spacing", [1e6, 150.0])
+def test_a_database_of_one_or_two_positions_is_not_confident(tmp_path, files, spacing):
+    """The issue's cases: one position (--spacing-m 1e6) answered 539 m off at 0.9994, two 361 m
+    off at 0.995. Whatever the scores, a handful of positions cannot support a fix."""
+    dem_path, _, _ = files
+    db_path = tmp_path / "tiny.zarr"
+    build_database(dem_path, db_path, (300, 300, 500, 500), spacing, workers=0, progress=False,
+                   azimuth_bins=180, block=8)
+    db = open_database(db_path)
+    assert len(db.x_coords) * len(db.y_coords) <= 4
+    dem = _dem()
+    fix = locate(_profile(dem), db=db, dem=dem)
+    assert fix.confidence < 0.5
+    assert any("database position" in n for n in fix.notes)
+
+
+def test_a_fix_on_the_edge_of_the_searched_area_is_not_confident(files):
+    """The rover stands 40 m outside the database's area: the best match is on its edge."""
+    dem_path, _, db_path = files
+    dem = _dem()
+    fix = locate(_profile(dem, x=540.0, y=420.0), db=open_database(db_path), dem=dem)
+    assert fix.x >= 490.0  # pulled to the edge
+    assert fix.confidence < 0.5 and any("edge" in n for n in fix.notes)
+
+
+def test_a_fix_inside_a_healthy_search_keeps_its_confidence(files):
+    dem_path, _, db_path = files
+    dem = _dem()
+    fix = locate(_profile(dem), db=open_database(db_path), dem=dem)
+    assert np.hypot(fix.x - 412.0, fix.y - 387.0) < 1.0
+    assert fix.confidence > 0.5 and not any("capped" in n for n in fix.notes)
+
+
+def _run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+@pytest.fixture
+def detection_forbidden(monkeypatch):
+    """Fail loudly if any image is decoded or detected."""
+    import skyfix.detect
+    import skyfix.profile.frames
+
+    def boom(*a, **k):
+        raise AssertionError("an image was read before the checks")
+
+    monkeypatch.setattr(skyfix.detect, "detect_skyline", boom)
+    monkeypatch.setattr(skyfix.profile.frames, "read_rgb", boom)
+
+
+def _acquisition(tmp_path, camera_height_m=1.5):
+    """An acquisition folder whose images would take long to detect (never read here)."""
+    from skyfix.camera import get_camera
+    from skyfix.formats import Acquisition, Frame, save_acquisition
+
+    acq = tmp_path / "acq"
+    acq.mkdir()
+    (acq / "f0.png").write_bytes(b"not read")
+    save_acquisition(acq, Acquisition(root=acq, camera=get_camera("navcam"),
+                                      camera_height_m=camera_height_m,
+                                      frames=(Frame("f0.png", 0.0, 0.0),)))
+    return acq
+
+
+def test_a_dem_other_than_the_databases_is_refused_before_detection(tmp_path, files,
+                                                                     detection_forbidden):
+    dem_path, other, db_path = files
+    acq = _acquisition(tmp_path)
+    r = _run("locate", acq, "--db", db_path, "--dem", other)
+    assert r.exit_code == 2, r.output
+    assert "is not the DEM the database" in r.output and str(other) in r.output
+    assert "Traceback" not in r.output
+
+
+def test_a_forced_other_dem_is_said_in_the_fix(tmp_path, files):
+    dem_path, other, db_path = files
+    prof = tmp_path / "p.json"
+    write_profile_json(prof, _profile(_dem()))
+    r = _run("locate", "--profile", prof, "--db", db_path, "--dem", other, "--force",
+             "-o", tmp_path / "fix.json")
+    assert r.exit_code == 0, r.output
+    fix = json.loads((tmp_path / "fix.json").read_text())
+    assert any("--force" in n and "not the DEM" in n for n in fix["notes"])
+
+
+def test_a_camera_height_other_than_the_databases_is_used_and_widens_the_sigma(tmp_path, files):
+    """Database at 1.5 m, rover camera 4 m up: refinement renders at 4 m (the fix lands on the
+    truth), a warning says so, and the position sigma is at least the 2.5 m difference."""
+    dem_path, _, db_path = files
+    dem = _dem()
+    prof = _profile(dem, camera_height_m=4.0)
+    prof.meta["camera_height_m"] = 4.0
+    path = tmp_path / "p.json"
+    write_profile_json(path, prof)
+    r = _run("locate", "--profile", path, "--db", db_path, "--dem", dem_path, "-o", tmp_path / "fix.json")
+    assert r.exit_code == 0, r.output
+    assert "4 m above the ground" in r.output and "built for 1.5 m" in r.output
+    fix = json.loads((tmp_path / "fix.json").read_text())
+    assert np.hypot(fix["x"] - 412.0, fix["y"] - 387.0) < 1.0
+    assert fix["position_sigma_m"] >= 2.5
+    assert any("camera" in n for n in fix["notes"])
