@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DemError, OutsideDemError, ParameterError
+from .planets import EARTH, planet_from_crs
+from .workcrs import MAX_SCALE_ERROR, geographic_bounds, local_tm_crs, scale_error
 
 log = logging.getLogger(__name__)
 
@@ -43,10 +45,12 @@ class Dem:
     x0, y0 : [m] coordinates of the centre of pixel (0, 0)
     dx, dy : [m] pixel size along x (east) and y (south), both > 0
     crs_wkt : the projected CRS as WKT; crs_name a short name (``EPSG:32611``) where one exists
+    body : the :class:`skyfix.planets.Planet` the CRS lives on (None when unknown: Earth is assumed)
+    scale_error : largest |scale - 1| [fraction] of the CRS over the DEM (NaN when not measured)
     """
 
     def __init__(self, z, x0, y0, dx, dy, crs_wkt="", crs_name="", *, source="", checksum="",
-                 voids: VoidReport | None = None):
+                 voids: VoidReport | None = None, body=None, scale_error: float = float("nan")):
         z = np.ascontiguousarray(z, dtype=np.float32)
         if z.ndim != 2 or min(z.shape) < 2:
             raise DemError(f"a DEM must be a 2-D grid of at least 2 x 2 cells, got shape {z.shape}")
@@ -59,6 +63,8 @@ class Dem:
         self.source = str(source)
         self.checksum = checksum or hashlib.sha256(z.tobytes()).hexdigest()
         self.voids = voids or VoidReport()
+        self.body = body
+        self.scale_error = float(scale_error)
 
     # --- geometry ------------------------------------------------------------------------------
     @property
@@ -161,7 +167,7 @@ class Dem:
         if y0 is None:
             y0 = (z.shape[0] - 1) * spacing_m
         c = CRS.from_user_input(crs)
-        return cls(z, x0, y0, spacing_m, spacing_m, c.to_wkt(), _crs_name(c))
+        return cls(z, x0, y0, spacing_m, spacing_m, c.to_wkt(), _crs_name(c), body=planet_from_crs(c))
 
 
 def build_max_pyramid(z: np.ndarray) -> list[np.ndarray]:
@@ -206,8 +212,12 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
     """Read a GeoTIFF (any raster rasterio reads) as a north-up metric :class:`Dem`.
 
     path : DEM file
-    crs : target CRS (``EPSG:…``, WKT, PROJ); default: the DEM's own if projected in metres, else
-        the local UTM zone of the DEM's centre
+    crs : target CRS (``EPSG:…``, WKT, PROJ); default (:mod:`skyfix.workcrs`): the DEM's own when
+        projected in metres (on a body other than Earth, only if its scale error over the DEM is
+        within 0.1 %), else a transverse Mercator on the DEM's body centred on it (on Earth: the
+        UTM zone of the DEM's centre, as always). The body (:attr:`Dem.body`) comes from the
+        CRS's datum. Heights are metres: a band scale and offset are applied; a band whose unit
+        says otherwise (feet, km) is refused
     resolution_m : [m] pixel size when reprojecting; default about the native size
     fill_max_cells : [cells] voids are filled by inverse-distance interpolation when a valid height
         lies within this many cells; larger voids stay masked (NaN) and are reported
@@ -233,10 +243,19 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 "so positions mean something"
             )
         src_crs = CRS.from_user_input(src.crs.to_wkt())
+        unit = (src.units or (None,))[0]
+        if unit and unit.strip().lower() not in ("m", "metre", "meter", "metres", "meters"):
+            raise DemError(f"{path}'s heights are in {unit!r}, not metres: convert them (e.g. "
+                           f"`gdal_calc.py -A {path.name} --calc 'A*0.3048'` for feet) and retry")
         band = src.read(1, masked=True).astype(np.float64)
         z = band.filled(np.nan)
         z[~np.isfinite(z)] = np.nan
+        scale, offset = (src.scales or (1.0,))[0], (src.offsets or (0.0,))[0]
+        if scale not in (None, 1.0) or offset not in (None, 0.0):
+            z = z * (scale if scale is not None else 1.0) + (offset or 0.0)
+            log.info("%s: band scale %s and offset %s applied to the heights", path.name, scale, offset)
         transform = src.transform
+        body = planet_from_crs(src_crs)
         if crs is not None:
             try:
                 dst_crs = CRS.from_user_input(crs)
@@ -244,9 +263,26 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 raise ParameterError(f"cannot understand CRS {crs!r}: {e}") from None
         elif src_crs.is_geographic:
             west, south, east, north = src.bounds
-            dst_crs = utm_crs_for((west + east) / 2, (south + north) / 2)
+            if body is EARTH:
+                dst_crs = utm_crs_for((west + east) / 2, (south + north) / 2)
+            else:
+                dst_crs = local_tm_crs(src_crs, (west + east) / 2, (south + north) / 2)
         else:
             dst_crs = src_crs
+            err = scale_error(src_crs, src.bounds)
+            if err > MAX_SCALE_ERROR:
+                if body is not EARTH:
+                    w, s, e, n = geographic_bounds(src_crs, src.bounds)
+                    dst_crs = local_tm_crs(src_crs, (w + e) / 2, (s + n) / 2)
+                    log.info("%s: %s stretches distances by up to %.2f %% over the DEM: "
+                             "reprojected to %s", path.name, _crs_name(src_crs) or src_crs.name,
+                             100 * err, dst_crs.name)
+                else:
+                    log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
+                                "%.1f %%): horizons are distorted by as much; pass --crs with a "
+                                "conformal CRS centred on the area (its UTM zone) to avoid it",
+                                path.name, _crs_name(src_crs) or src_crs.name, 100 * err,
+                                100 * MAX_SCALE_ERROR)
         if not dst_crs.is_projected or abs(dst_crs.axis_info[0].unit_conversion_factor - 1.0) > 1e-9:
             raise DemError(f"target CRS {_crs_name(dst_crs) or dst_crs.name} is not projected in metres: "
                            "pass --crs with a metric projected CRS (e.g. a UTM zone)")
@@ -269,8 +305,12 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
             log.info("reprojected %s from %s to %s", path.name, _crs_name(src_crs), _crs_name(dst_crs))
     voids = _fill_voids(z, fill_max_cells)
     dx, dy = transform.a, -transform.e
-    return Dem(z, transform.c + dx / 2, transform.f - dy / 2, dx, dy, dst_crs.to_wkt(),
-               _crs_name(dst_crs), source=str(path), checksum=file_checksum(path), voids=voids)
+    dem = Dem(z, transform.c + dx / 2, transform.f - dy / 2, dx, dy, dst_crs.to_wkt(),
+              _crs_name(dst_crs), source=str(path), checksum=file_checksum(path), voids=voids,
+              body=body)
+    xmin, ymin, xmax, ymax = dem.bounds
+    dem.scale_error = scale_error(dst_crs, (xmin, ymin, xmax, ymax))
+    return dem
 
 
 def _trim_nan_border(z: np.ndarray, transform):

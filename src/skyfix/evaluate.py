@@ -53,7 +53,7 @@ class EvalConfig:
     seed: int = 0
     area: tuple[float, float, float, float] | None = None
     camera_height_m: float = 1.5
-    planet: str = "earth"
+    planet: str | None = None  # None: the DEM's body
     skylines: str = "detect"
     tilt_deg: float = 15.0
 
@@ -78,7 +78,8 @@ class EvalConfig:
             raise ParameterError(f"camera height must be >= 0 m, got {self.camera_height_m}")
         if not (math.isfinite(self.tilt_deg) and abs(self.tilt_deg) <= 90):
             raise ParameterError(f"mast tilt must be within +-90 deg (up positive), got {self.tilt_deg}")
-        get_planet(self.planet)
+        if self.planet is not None:
+            get_planet(self.planet)
 
 
 def peak_rss_mb() -> float:

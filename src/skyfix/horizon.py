@@ -28,7 +28,7 @@ import numpy as np
 
 from .dem import Dem
 from .errors import ParameterError
-from .planets import EARTH, Planet, get_planet
+from .planets import EARTH, Planet, resolve_planet
 
 #: [m] closest sample to the camera: the near field matters on slopes
 T_MIN_M = 0.1
@@ -73,14 +73,15 @@ def _check(dem: Dem, x, y, camera_height_m, azimuth_bins, max_distance_m):
     dem.require_inside(x, y)
 
 
-def render_horizons(dem: Dem, x, y, *, camera_height_m: float = 1.5, planet="earth",
+def render_horizons(dem: Dem, x, y, *, camera_height_m: float = 1.5, planet=None,
                     azimuth_bins: int = 360, max_distance_m: float | None = None,
                     skip_tol_deg: float = 0.001) -> HorizonBatch:
     """Skylines at many points (parallel over points with numba's threads).
 
     x, y : [m] positions in the DEM's CRS (scalars or 1-D arrays)
     camera_height_m : [m] camera centre above the DEM surface
-    planet : ``earth``, ``mars``, a radius [m] or a :class:`Planet` (curvature and refraction)
+    planet : ``earth``, ``mars``, a radius [m] or a :class:`Planet` (curvature and refraction);
+        None (default): the DEM's body (:attr:`Dem.body`), Earth when unknown
     azimuth_bins : number of bins over 360 deg
     max_distance_m : [m] ray length limit (default: to the DEM edge)
     skip_tol_deg : [deg] a block is skipped when it could raise the skyline by less than this
@@ -90,7 +91,7 @@ def render_horizons(dem: Dem, x, y, *, camera_height_m: float = 1.5, planet="ear
     if x.shape != y.shape:
         raise ParameterError("x and y must have the same length")
     _check(dem, x, y, camera_height_m, azimuth_bins, max_distance_m)
-    planet = get_planet(planet)
+    planet = resolve_planet(planet, getattr(dem, "body", None))
     bins = int(azimuth_bins)
     data, offs, rows, cols = packed_pyramid(dem)
     az = np.radians(azimuth_centres(bins))
@@ -286,7 +287,7 @@ def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz,
 
 
 def reference_horizon(dem: Dem, x: float, y: float, *, camera_height_m: float = 1.5,
-                      planet="earth", azimuth_bins: int = 360, max_distance_m: float | None = None,
+                      planet=None, azimuth_bins: int = 360, max_distance_m: float | None = None,
                       near_step_m: float = 0.25, step_cells: float = 0.25):
     """Slow, obviously-correct skyline: (elevation_deg, ray_length_m), each (bins,).
 
@@ -296,7 +297,7 @@ def reference_horizon(dem: Dem, x: float, y: float, *, camera_height_m: float = 
     highest elevation angle wins.
     """
     _check(dem, [x], [y], camera_height_m, azimuth_bins, max_distance_m)
-    planet = get_planet(planet)
+    planet = resolve_planet(planet, getattr(dem, "body", None))
     ny, nx = dem.z.shape
     zc = float(dem.height_at(x, y)) + camera_height_m
     u0, v0 = dem.xy_to_colrow(x, y)

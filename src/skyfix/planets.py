@@ -39,11 +39,14 @@ class Planet:
 
 EARTH = Planet("earth", 6_371_000.0, 0.13)
 MARS = Planet("mars", 3_389_500.0, 0.0)
-PLANETS = {"earth": EARTH, "mars": MARS}
+MOON = Planet("moon", 1_737_400.0, 0.0)
+PLANETS = {"earth": EARTH, "mars": MARS, "moon": MOON}
+#: a --planet whose radius differs from the DEM's body by more than this share contradicts it
+CONTRADICTION_SHARE = 0.05
 
 
 def get_planet(spec: str | float | Planet) -> Planet:
-    """``earth``, ``mars``, a radius in metres (number or numeric string), or a Planet."""
+    """``earth``, ``mars``, ``moon``, a radius in metres (number or numeric string), or a Planet."""
     if isinstance(spec, Planet):
         return spec
     if isinstance(spec, str) and spec.strip().lower() in PLANETS:
@@ -52,8 +55,54 @@ def get_planet(spec: str | float | Planet) -> Planet:
         radius = float(spec)
     except (TypeError, ValueError):
         raise ParameterError(
-            f"unknown planet {spec!r}: use 'earth', 'mars' or a radius in metres"
+            f"unknown planet {spec!r}: use 'earth', 'mars', 'moon' or a radius in metres"
         ) from None
     if not radius > 0:
         raise ParameterError(f"planet radius must be > 0 m, got {radius}")
     return Planet(f"radius {radius:g} m", radius, 0.0)
+
+
+def planet_from_crs(crs) -> Planet | None:
+    """The body a CRS lives on (``conventions.md``), from its datum and ellipsoid: Earth (refraction
+    0.13), Mars, the Moon (the conventions' radii), any other body pyproj knows (mean radius
+    (2a + b) / 3 of its ellipsoid, no refraction). None for a CRS without a geodetic datum.
+    ``crs``: anything ``pyproj.CRS.from_user_input`` takes."""
+    from pyproj import CRS
+
+    c = CRS.from_user_input(crs)
+    ell = c.ellipsoid
+    if ell is None:
+        return None
+    names = " ".join(filter(None, [getattr(c.datum, "name", ""), ell.name, c.name])).lower()
+    a, b = float(ell.semi_major_metre), float(ell.semi_minor_metre)
+    radius = (2.0 * a + b) / 3.0
+    for body in (MARS, MOON):
+        if body.name in names and abs(radius / body.radius_m - 1) < CONTRADICTION_SHARE:
+            return body
+    if abs(radius / EARTH.radius_m - 1) < 0.01 and not any(
+            w in names for w in ("mars", "moon", "lunar", "venus", "mercury")):
+        return EARTH
+    body = (getattr(c.datum, "name", "") or ell.name or "body").split("(")[0].split("/")[0].strip()
+    return Planet(body.lower() or f"radius {radius:g} m", radius, 0.0)
+
+
+def resolve_planet(spec, body: Planet | None) -> Planet:
+    """The planet to use: ``spec`` (:func:`get_planet`'s input) overriding the DEM's ``body``, the
+    body when ``spec`` is None, Earth when neither says.
+
+    A DEM whose CRS is on another body than Earth is that body's data: a ``spec`` naming another
+    body, or a radius more than 5 % from it, is refused (it would bend every line of sight by
+    the wrong curvature). An Earth CRS is also what stand-in terrain carries (this project's
+    reference DEMs rendered as Mars, a generated DEM), so ``spec`` overrides it freely."""
+    if spec is None:
+        return body if body is not None else EARTH
+    planet = get_planet(spec)
+    if body is not None and body.name != EARTH.name:
+        named = isinstance(spec, str) and spec.strip().lower() in PLANETS
+        if (named and planet.name != body.name) or \
+                abs(planet.radius_m / body.radius_m - 1) > CONTRADICTION_SHARE:
+            raise ParameterError(
+                f"--planet {spec} contradicts the DEM's CRS, which is on {body.name} (radius "
+                f"{body.radius_m:g} m): drop --planet (the CRS says which body), or give a DEM of "
+                f"{planet.name}")
+    return planet

@@ -14,7 +14,8 @@ import click
 @click.option("--camera-height-m", type=float, default=1.5, show_default=True, help="[m] above ground.")
 @click.option("--azimuth-bins", type=int, default=360, show_default=True, help="Bins over 360 deg.")
 @click.option("--max-distance-m", type=float, default=None, help="[m] ray limit (default: DEM edge).")
-@click.option("--planet", default="earth", show_default=True, help="earth, mars or a radius [m].")
+@click.option("--planet", default=None,
+              help="earth, mars, moon or a radius [m]; default: the body of the DEM's CRS (an Earth CRS may stand in for any body).")
 @click.option("--workers", type=int, default=None,
               help="0: in this process; N: a local Dask cluster of N processes (default: one per core).")
 @click.option("--scheduler", default=None, metavar="ADDRESS",

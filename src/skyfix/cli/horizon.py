@@ -46,7 +46,7 @@ def horizon(dem_path, x, y, camera_height_m, planet, azimuth_bins, max_distance_
     if as_json:
         click.echo(to_json({
             "x": x, "y": y, "crs": dem.crs_name or dem.crs_wkt, "ground_z_m": float(hb.ground_z_m[0]),
-            "camera_height_m": camera_height_m, "planet": planet.to_attr(),
+            "camera_height_m": camera_height_m, "planet": hb.planet.to_attr(),
             "azimuth_deg": np.round(az, 6), "elevation_deg": np.round(el, 4),
             "ray_length_m": np.round(length, 2),
         }))

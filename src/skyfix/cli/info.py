@@ -1,4 +1,5 @@
-"""``skyfix info``: what a skyline database holds, how complete it is, its size on disk."""
+"""``skyfix info``: what a skyline database holds, how complete it is, its size on disk; or what a
+DEM is (its CRS, body, work CRS, extent, cells, voids and distortion)."""
 
 from __future__ import annotations
 
@@ -9,14 +10,20 @@ import click
 @click.argument("db", type=click.Path())
 @click.option("--json", "as_json", is_flag=True, help="Print the description as JSON.")
 def info(db, as_json):
-    """Describe the skyline database DB (complete or not).
+    """Describe the skyline database DB (complete or not), or the DEM file DB.
 
     Exit status 0, or 2 if built blocks have lost their data files (described, then named).
     """
+    from pathlib import Path
+
     from .._io import to_json
     from ..database import describe
     from ..errors import DatabaseError
 
+    if Path(db).is_file():
+        d = describe_dem(db)
+        click.echo(to_json(d, indent=1) if as_json else "\n".join(f"{k:12s} {v}" for k, v in _dem_lines(d)))
+        return
     d = describe(db)
     if as_json:
         click.echo(to_json(d, indent=1))
@@ -50,3 +57,65 @@ def _print(d: dict) -> None:
            else "no skyline built yet"),
     ]
     click.echo("\n".join(lines))
+
+
+def describe_dem(path) -> dict:
+    """What ``skyfix`` makes of a DEM file: its own CRS and body, the work CRS it is read into,
+    extent [m], cell size [m], height range [m], voids and the work CRS's scale error."""
+    import numpy as np
+    import rasterio
+    from pyproj import CRS
+
+    from ..dem import load_dem
+    from ..planets import planet_from_crs
+    from ..workcrs import geographic_bounds, scale_error
+
+    with rasterio.open(path) as src:
+        native = CRS.from_user_input(src.crs.to_wkt()) if src.crs else None
+        native_bounds = list(src.bounds)
+        native_size = [src.width, src.height]
+        native_res = [abs(src.transform.a), abs(src.transform.e)]
+    dem = load_dem(path)
+    body = dem.body
+    b = dem.bounds
+    native_err = (scale_error(native, native_bounds) if native is not None and native.is_projected
+                  else float("nan"))
+    return {
+        "path": str(path),
+        "native_crs": (native.to_string() if native is not None else None),
+        "native_crs_name": native.name if native is not None else None,
+        "native_size_px": native_size, "native_cell": native_res,
+        "native_scale_error": native_err,
+        "body": body.to_attr() if body is not None else None,
+        "work_crs": dem.crs_name or dem.crs_wkt,
+        "reprojected": bool(native is None or dem.crs_wkt != native.to_wkt()),
+        "bounds_m": [float(v) for v in b],
+        "size_m": [float(b[2] - b[0]), float(b[3] - b[1])],
+        "lonlat_bounds": [float(v) for v in geographic_bounds(dem.crs_wkt, b)],
+        "cell_m": [dem.dx, dem.dy], "shape": list(dem.z.shape),
+        "height_m": [float(np.nanmin(dem.z)), float(np.nanmax(dem.z))],
+        "voids": str(dem.voids),
+        "scale_error": dem.scale_error,
+        "checksum_sha256": dem.checksum,
+    }
+
+
+def _dem_lines(d: dict):
+    body = d["body"] or {"name": "unknown (Earth assumed)", "radius_m": float("nan"), "refraction_k": 0}
+    w, s, e, n = d["lonlat_bounds"]
+    yield "dem", d["path"]
+    yield "native crs", (f"{d['native_crs_name']} ({d['native_crs']}), {d['native_size_px'][0]} x "
+                         f"{d['native_size_px'][1]} px of {d['native_cell'][0]:g} x {d['native_cell'][1]:g}"
+                         + (f", scale error {100 * d['native_scale_error']:.3f} %"
+                            if d["native_scale_error"] == d["native_scale_error"] else ""))
+    yield "body", f"{body['name']} (R {body['radius_m']:.0f} m, refraction k {body['refraction_k']:g})"
+    yield "work crs", (f"{d['work_crs']}" + (" (reprojected)" if d["reprojected"] else " (the DEM's own)"))
+    yield "extent", (f"x {d['bounds_m'][0]:.1f}..{d['bounds_m'][2]:.1f}, y {d['bounds_m'][1]:.1f}.."
+                     f"{d['bounds_m'][3]:.1f} m ({d['size_m'][0] / 1000:.2f} x {d['size_m'][1] / 1000:.2f} km); "
+                     f"lon {w:.5f}..{e:.5f}, lat {s:.5f}..{n:.5f} deg")
+    yield "cells", f"{d['shape'][1]} x {d['shape'][0]} of {d['cell_m'][0]:.3f} x {d['cell_m'][1]:.3f} m"
+    yield "heights", f"{d['height_m'][0]:.1f} .. {d['height_m'][1]:.1f} m; {d['voids']}"
+    err = d["scale_error"]
+    yield "distortion", (f"scale error up to {100 * err:.4f} % over the DEM"
+                         + (" (over the 0.1 % a horizon can take: pass --crs with a conformal CRS)"
+                            if err > 1e-3 else ""))

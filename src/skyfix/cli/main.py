@@ -21,7 +21,7 @@ from ..errors import SkyfixError
 COMMANDS = {
     "horizon": ("horizon", "horizon", "Render the skyline a DEM predicts from one point."),
     "build-db": ("build_db", "build_db", "Build a skyline database over a search area."),
-    "info": ("info", "info", "Describe a skyline database."),
+    "info": ("info", "info", "Describe a skyline database or a DEM."),
     "verify": ("verify", "verify", "Check a skyline database block by block."),
     "simulate": ("simulate", "simulate", "Simulate a rover acquisition from a DEM."),
     "simulate-set": ("simulate", "simulate_set", "Simulate a named robustness set."),

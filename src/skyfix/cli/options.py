@@ -38,8 +38,9 @@ camera_height_option = click.option(
     "--camera-height-m", type=float, default=1.5, show_default=True, callback=camera_height,
     help="Camera centre above the ground [m].")
 planet_option = click.option(
-    "--planet", default="earth", show_default=True, callback=_planet,
-    help="earth, mars, or a planet radius in metres (curvature; refraction 0.13 on Earth).")
+    "--planet", default=None, callback=_planet,
+    help="earth, mars, moon, or a planet radius in metres (curvature; refraction 0.13 on Earth); "
+         "default: the body of the DEM's CRS (an Earth CRS may stand in for any body).")
 azimuth_bins_option = click.option(
     "--azimuth-bins", type=int, default=360, show_default=True,
     help="Number of azimuth bins over 360 degrees.")

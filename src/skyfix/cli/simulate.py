@@ -36,7 +36,8 @@ CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [
 @click.option("--conditions", default=None, help=CONDITION_HELP)
 @click.option("--seed", type=int, default=0, show_default=True,
               help="Seed of the looks (sun, texture, noise, rocks), >= 0.")
-@click.option("--planet", default="earth", show_default=True, help="earth, mars or a radius [m].")
+@click.option("--planet", default=None,
+              help="earth, mars, moon or a radius [m]; default: the body of the DEM's CRS (an Earth CRS may stand in for any body).")
 @click.option("--crs", default=None, help="Target CRS when the DEM must be reprojected.")
 @click.option("--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
 @click.option("--overwrite", is_flag=True,
@@ -85,7 +86,8 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
 @click.option("--camera-height-m", type=float, default=1.5, show_default=True)
 @click.option("--tilt-deg", type=float, default=0.0, show_default=True,
               help="Mast tilt of the frames, up positive [deg] (SCOM sets its own).")
-@click.option("--planet", default="earth", show_default=True, help="earth, mars or a radius [m].")
+@click.option("--planet", default=None,
+              help="earth, mars, moon or a radius [m]; default: the body of the DEM's CRS (an Earth CRS may stand in for any body).")
 @click.option("--crs", default=None, help="Target CRS when the DEM must be reprojected.")
 @click.option("--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
 @click.option("--overwrite", is_flag=True,

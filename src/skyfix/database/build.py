@@ -25,7 +25,7 @@ import numpy as np
 from .. import __version__
 from .._io import write_json
 from ..errors import DatabaseError, OutputExistsError, ParameterError
-from ..planets import Planet, get_planet
+from ..planets import Planet, get_planet, resolve_planet
 from .executors import check_executor_options, make_executor
 from .integrity import clean_partials, intact_blocks, root_state
 from .layout import (BLOCK, COMPRESSED_SHARE, FORMAT, FORMAT_VERSION, Grid, MARKER_DIR,
@@ -212,7 +212,7 @@ class BuildResult:
 
 
 def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: float = 1.5,
-                   azimuth_bins: int = 360, max_distance_m: float | None = None, planet="earth",
+                   azimuth_bins: int = 360, max_distance_m: float | None = None, planet=None,
                    workers: int | None = None, scheduler: str | None = None,
                    executor: Executor | None = None, overwrite: bool = False, progress: bool = True,
                    block: int = BLOCK) -> BuildResult:
@@ -224,7 +224,7 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
     spacing_m : [m] grid spacing
     camera_height_m : [m] camera above the ground; azimuth_bins : bins over 360 deg
     max_distance_m : [m] ray length limit (None: to the DEM edge)
-    planet : ``earth``, ``mars``, a radius [m] or a Planet
+    planet : ``earth``, ``mars``, a radius [m] or a Planet; None (default): the DEM's body
     workers : 0 = in process; N = a local Dask cluster of N processes (default: one per core)
     scheduler : an existing Dask scheduler address instead; executor : any Executor instead (its
         tasks must see the same files; numba keeps its default threads)
@@ -236,7 +236,9 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
 
     out = Path(out)
     grid = Grid.from_bounds(bounds, spacing_m, block)
-    planet = get_planet(planet)
+    planet_spec = planet
+    if planet is not None:
+        get_planet(planet)  # a bad --planet is refused before the DEM is read
     if int(azimuth_bins) != azimuth_bins or azimuth_bins <= 0:
         raise ParameterError(f"azimuth bins must be a positive whole number, got {azimuth_bins}")
     azimuth_bins = int(azimuth_bins)
@@ -251,6 +253,7 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
         check_executor_options(workers, scheduler)
 
     dem = load_dem(dem_path)
+    planet = resolve_planet(planet_spec, dem.body)  # the DEM's CRS says which body
     xs, ys = grid.x_coords, grid.y_coords
     # Every position must have a height: the corners catch a wrong area, the full grid a void.
     dem.require_inside([xs[0], xs[-1], xs[0], xs[-1]], [ys[0], ys[0], ys[-1], ys[-1]],

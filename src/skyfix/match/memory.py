@@ -34,7 +34,7 @@ class MemoryStore:
     attrs: dict = field(default_factory=dict)
 
     @classmethod
-    def from_dem(cls, dem, x_coords, y_coords, *, camera_height_m=1.5, planet="earth",
+    def from_dem(cls, dem, x_coords, y_coords, *, camera_height_m=1.5, planet=None,
                  azimuth_bins=360, block=64, scale_deg=0.01):
         """Render the skylines of a grid (x ascending, y descending) from a DEM."""
         from ..horizon import render_horizons
@@ -44,7 +44,7 @@ class MemoryStore:
                              planet=planet, azimuth_bins=azimuth_bins)
         el = hb.elevation_deg.reshape(len(y_coords), len(x_coords), azimuth_bins)
         return cls.from_elevation(x_coords, y_coords, el, scale_deg=scale_deg, block=block,
-                                  camera_height_m=camera_height_m, planet=str(planet),
+                                  camera_height_m=camera_height_m, planet=hb.planet.name,
                                   crs_wkt=dem.crs_wkt)
 
     @classmethod

@@ -78,16 +78,20 @@ class HeadingFix:
 
 
 def crs_and_lonlat(crs_wkt: str, x: float, y: float):
-    """(short CRS name, lon [deg], lat [deg]) of (x, y) [m] in ``crs_wkt``; NaNs without a CRS."""
+    """(short CRS name, lon [deg], lat [deg]) of (x, y) [m] in ``crs_wkt``; NaNs without a CRS.
+    On Earth lon/lat are WGS 84 (what GeoJSON means); on another body, its own geodetic CRS."""
     if not crs_wkt:
         return "", float("nan"), float("nan")
     from pyproj import CRS, Transformer
+
+    from ..planets import EARTH, planet_from_crs
 
     crs = CRS.from_user_input(crs_wkt)
     auth = crs.to_authority()
     name = f"{auth[0]}:{auth[1]}" if auth else crs.name
     try:
-        t = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+        geo = "EPSG:4326" if planet_from_crs(crs) in (EARTH, None) else crs.geodetic_crs
+        t = Transformer.from_crs(crs, geo, always_xy=True)
         lon, lat = t.transform(x, y)
     except Exception:  # noqa: BLE001 - a CRS without a geographic link gives no lon/lat
         lon = lat = float("nan")

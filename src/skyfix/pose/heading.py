@@ -29,7 +29,7 @@ def at_window_edge(heading_deg, prior_deg, window_deg, tol_deg=1e-6) -> bool:
 
 
 def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
-                     camera_height_m=1.5, planet="earth", prior_pitch_deg=0.0, prior_roll_deg=0.0,
+                     camera_height_m=1.5, planet=None, prior_pitch_deg=0.0, prior_roll_deg=0.0,
                      render_bins=1440, model=None) -> HeadingFix:
     """Scenario 3: heading [deg] from a rough position (x, y) [m] and a heading prior [deg].
 

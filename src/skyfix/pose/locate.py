@@ -159,7 +159,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     camera_height_m = float(camera_height_m)
     db_height = float(getattr(db, "camera_height_m", camera_height_m) or camera_height_m)
     height_gap = abs(camera_height_m - db_height) if db is not None else 0.0
-    if planet is None:
+    if planet is None and db is not None:  # the database's (its DEM's body); else the DEM's own
         planet = getattr(db, "planet", None) or "earth"
         if isinstance(planet, dict):
             planet = planet.get("name") or planet.get("radius_m") or "earth"

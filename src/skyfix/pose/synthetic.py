@@ -9,7 +9,7 @@ from .forward import body_profile
 
 
 def synthetic_profile(dem, x, y, heading_deg, pitch_deg=0.0, roll_deg=0.0, *, camera_height_m=1.5,
-                      planet="earth", n_bins=360, noise_deg=0.0, outlier_fraction=0.0,
+                      planet=None, n_bins=360, noise_deg=0.0, outlier_fraction=0.0,
                       coverage_deg=360.0, rng=None, render_bins=3600, prior_pitch_deg=0.0,
                       prior_roll_deg=0.0):
     """A body-frame :class:`~skyfix.formats.Profile` as a rover at (x, y) [m] with this attitude

@@ -28,7 +28,7 @@ from ..dem import Dem
 from ..errors import ParameterError
 from ..formats import (Acquisition, Frame, PanoramaSpec, Skyline, Truth, save_acquisition,
                        write_skyline_json)
-from ..planets import get_planet
+from ..planets import get_planet, resolve_planet
 from ..raycast import Projection, camera_centre, cast_image, column_skyline
 from .conditions import as_conditions
 from .folders import check_out_folder, staged_folder
@@ -78,7 +78,8 @@ def check_render_options(*, mode: str, camera, camera_height_m: float, tilt_deg:
                          pan_step_deg: float | None = None, pano_size=(PANO_WIDTH, PANO_HEIGHT),
                          vfov_deg: float = PANO_VFOV_DEG,
                          elevation_top_deg: float = PANO_ELEVATION_TOP_DEG):
-    """Check the options an acquisition and a set share; returns (camera, planet, pans or None).
+    """Check the options an acquisition and a set share; returns (camera, planet or None when not
+    given, pans or None).
 
     Called before any output is touched, so a refusal leaves nothing behind.
     """
@@ -89,7 +90,7 @@ def check_render_options(*, mode: str, camera, camera_height_m: float, tilt_deg:
         raise ParameterError(f"camera height must be >= 0 m, got {camera_height_m}")
     if not (np.isfinite(tilt_deg) and abs(tilt_deg) <= 90):
         raise ParameterError(f"mast tilt must be within +-90 deg (up positive), got {tilt_deg}")
-    pl = get_planet(planet)
+    pl = get_planet(planet) if planet is not None else None
     cam = get_camera(camera) if isinstance(camera, str) else camera
     pans = None
     if mode == "frames":
@@ -140,7 +141,7 @@ def _render_one(dem, origin, proj: Projection, scene: Scene, planet, name: str, 
 def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = "navcam",
                          mode: str = "frames", frames: int | None = None,
                          pan_start_deg: float | None = None, pan_step_deg: float | None = None,
-                         tilt_deg: float = 0.0, camera_height_m: float = 1.5, planet="earth",
+                         tilt_deg: float = 0.0, camera_height_m: float = 1.5, planet=None,
                          conditions=None, seed: int = 0, overwrite: bool = False,
                          attitude_prior: tuple[float, float] | None = None,
                          pano_size: tuple[int, int] = (PANO_WIDTH, PANO_HEIGHT),
@@ -160,7 +161,8 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
     frames, pan_start_deg, pan_step_deg : frame set (see :func:`frame_pans`) [deg]
     tilt_deg : [deg] mast tilt of every frame (up positive)
     camera_height_m : [m] camera centre above the DEM surface
-    planet : ``earth``, ``mars`` or a radius [m] (curvature, sky and soil colours)
+    planet : ``earth``, ``mars`` or a radius [m] (curvature, sky and soil colours); None: the
+        DEM's body
     conditions : :class:`Conditions`, a dict or a string like ``"dust:0.5,rocks"``
     seed : makes the looks (sun, texture, noise, rocks) reproducible
     attitude_prior : (pitch, roll) [deg] the inclinometer reports, finite and within +-60; default
@@ -172,6 +174,7 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
         mode=mode, camera=camera, camera_height_m=camera_height_m, tilt_deg=tilt_deg, planet=planet,
         seed=seed, frames=frames, pan_start_deg=pan_start_deg, pan_step_deg=pan_step_deg,
         pano_size=pano_size, vfov_deg=vfov_deg, elevation_top_deg=elevation_top_deg)
+    pl = resolve_planet(planet, getattr(dem, "body", None))
     for name, v in (("x", truth.x), ("y", truth.y), ("yaw", truth.yaw_deg), ("pitch", truth.pitch_deg),
                     ("roll", truth.roll_deg)):
         if not np.isfinite(v):

@@ -15,7 +15,7 @@ from ..camera import Camera, get_camera
 from ..dem import Dem
 from ..errors import ParameterError
 from ..formats import Truth
-from ..planets import get_planet
+from ..planets import resolve_planet
 from .acquisition import (PANO_HEIGHT, PANO_WIDTH, check_render_options, check_seed,
                           simulate_acquisition)
 from .folders import check_out_folder, staged_folder
@@ -76,7 +76,7 @@ def _draw_positions(dem: Dem, area, n: int, rng: np.random.Generator) -> np.ndar
 
 
 def plan_set(dem: Dem, name: str, cases: int, seed: int, *, area=None, camera: str | Camera = "navcam",
-             mode: str = "frames", camera_height_m: float = 1.5, planet="earth") -> list[dict]:
+             mode: str = "frames", camera_height_m: float = 1.5, planet=None) -> list[dict]:
     """The cases of a named set: per case ``truth`` and the keyword arguments of
     :func:`simulate_acquisition` (deterministic for ``seed``)."""
     from ..horizon import render_horizons
@@ -90,7 +90,7 @@ def plan_set(dem: Dem, name: str, cases: int, seed: int, *, area=None, camera: s
     seed = check_seed(seed)
     area = _check_area(dem, area)
     rng = np.random.default_rng([int(seed), sum(map(ord, key))])
-    pl = get_planet(planet)
+    pl = resolve_planet(planet, getattr(dem, "body", None))
     cam = get_camera(camera) if isinstance(camera, str) else camera
     if key == "HREL":
         pool = _draw_positions(dem, area, 6 * cases, rng)
@@ -132,7 +132,7 @@ def plan_set(dem: Dem, name: str, cases: int, seed: int, *, area=None, camera: s
 
 def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
                  camera: str | Camera = "navcam", mode: str = "frames", frames: int | None = None,
-                 camera_height_m: float = 1.5, planet="earth", overwrite: bool = False,
+                 camera_height_m: float = 1.5, planet=None, overwrite: bool = False,
                  pano_size: tuple[int, int] = (PANO_WIDTH, PANO_HEIGHT),
                  progress: bool = False, tilt_deg: float = 0.0) -> list[Path]:
     """Render a named robustness set (:data:`SETS`) into ``out/case_NNN`` folders.

@@ -1,0 +1,80 @@
+"""The work CRS (``conventions.md``, "World frame"): a metric projected CRS on the DEM's own body in
+which distances are true to within 0.1 % over the work area.
+
+A horizon is made of distances and heights: a projection that stretches distances tilts every
+line of sight (an equirectangular Mars map with its standard parallel at the equator stretches
+east-west distances by 5 % at Jezero's 18.4 deg N). Where the DEM's own CRS is geographic, or
+projected with more distortion than that on another body than Earth, the DEM is reprojected to a
+transverse Mercator on its body, centred on the DEM (conformal, scale 1 on its central meridian:
+well under 0.1 % within ~90 km of it). On Earth a geographic DEM goes to its UTM zone, as it always
+has; a distorted projected Earth DEM is kept (its coordinates are the user's) with a warning that
+gives the figure and says to pass ``--crs``.
+"""
+
+from __future__ import annotations
+
+import math
+
+#: the largest scale error [fraction] a work CRS may have over the work area
+MAX_SCALE_ERROR = 0.001
+
+
+def local_tm_crs(crs, lon0: float, lat0: float):
+    """A transverse Mercator (scale 1, no false origin) on the geodetic datum of ``crs`` (any
+    body), centred on (lon0, lat0) [deg] of that body: a ``pyproj.CRS``."""
+    from pyproj import CRS
+    from pyproj.crs import ProjectedCRS
+    from pyproj.crs.coordinate_operation import TransverseMercatorConversion
+
+    geo = CRS.from_user_input(crs).geodetic_crs
+    conv = TransverseMercatorConversion(latitude_natural_origin=round(lat0, 6),
+                                        longitude_natural_origin=round(lon0, 6),
+                                        false_easting=0.0, false_northing=0.0,
+                                        scale_factor_natural_origin=1.0)
+    name = f"skyfix local transverse Mercator at {lat0:.4f}, {lon0:.4f} on {geo.name}"
+    return ProjectedCRS(conversion=conv, geodetic_crs=geo, name=name)
+
+
+def scale_error(crs, bounds, n: int = 5) -> float:
+    """The largest |scale - 1| [fraction] of a projected ``crs`` over ``bounds`` (xmin, ymin, xmax,
+    ymax) [m], meridional and parallel scale on an n x n grid of points, on the CRS's own body
+    (PROJ's factors). NaN where PROJ cannot say."""
+    from pyproj import CRS, Proj, Transformer
+
+    c = CRS.from_user_input(crs)
+    try:
+        to_geo = Transformer.from_crs(c, c.geodetic_crs, always_xy=True)
+        proj = Proj(c)
+        xs = [bounds[0] + (bounds[2] - bounds[0]) * i / (n - 1) for i in range(n)]
+        ys = [bounds[1] + (bounds[3] - bounds[1]) * i / (n - 1) for i in range(n)]
+        worst = 0.0
+        for x in xs:
+            for y in ys:
+                lon, lat = to_geo.transform(x, y)
+                f = proj.get_factors(lon, lat)
+                worst = max(worst, abs(f.meridional_scale - 1.0), abs(f.parallel_scale - 1.0))
+        return worst
+    except Exception:  # noqa: BLE001 - pyproj raises several types for a CRS it cannot use
+        return float("nan")
+
+
+def geographic_bounds(crs, bounds):
+    """(west, south, east, north) [deg on the CRS's body] of projected ``bounds`` [m]."""
+    from pyproj import CRS, Transformer
+
+    c = CRS.from_user_input(crs)
+    t = Transformer.from_crs(c, c.geodetic_crs, always_xy=True)
+    return t.transform_bounds(*bounds)
+
+
+def lonlat_to_xy(crs, lon: float, lat: float):
+    """(x, y) [m] in the work CRS ``crs`` of a longitude/latitude [deg] on its body."""
+    from pyproj import CRS, Transformer
+
+    c = CRS.from_user_input(crs)
+    x, y = Transformer.from_crs(c.geodetic_crs, c, always_xy=True).transform(lon, lat)
+    if not (math.isfinite(x) and math.isfinite(y)):
+        from .errors import ParameterError
+
+        raise ParameterError(f"lon {lon}, lat {lat} cannot be placed in {c.name}")
+    return float(x), float(y)
