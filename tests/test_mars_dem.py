@@ -117,3 +117,29 @@ def test_heights_in_feet_are_refused_and_a_scale_is_applied(tmp_path, terrain):
         d.scales, d.offsets = (0.5,), (100.0,)
     got = load_dem(scaled).z
     assert np.nanmax(np.abs(got - terrain.z)) < 1e-2
+
+
+def test_points_by_longitude_and_latitude_on_the_dems_body(tmp_path, terrain):
+    """--lon/--lat on Mars name the same point as its work-CRS metres, and the JSON gives both."""
+    import json
+
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+    from skyfix.workcrs import lonlat_to_xy
+
+    geo, _ = _mars_files(tmp_path, terrain.z)
+    dem = load_dem(geo)
+    x, y = lonlat_to_xy(dem.crs_wkt, LON0 + 0.005, LAT0 - 0.004)
+    assert abs(x - 0.005 * math.pi / 180 * R_MARS * math.cos(math.radians(LAT0))) < 5
+    by_ll = CliRunner().invoke(cli, ["horizon", str(geo), "--lon", str(LON0 + 0.005), "--lat",
+                                     str(LAT0 - 0.004), "--json"])
+    by_xy = CliRunner().invoke(cli, ["horizon", str(geo), "--x", str(x), "--y", str(y), "--json"])
+    assert by_ll.exit_code == 0 and by_xy.exit_code == 0, by_ll.output
+    a, b = json.loads(by_ll.output), json.loads(by_xy.output)
+    assert a["elevation_deg"] == b["elevation_deg"]
+    assert abs(b["lon"] - (LON0 + 0.005)) < 1e-9 and abs(b["lat"] - (LAT0 - 0.004)) < 1e-9
+    assert a["planet"]["name"] == "mars"
+    both = CliRunner().invoke(cli, ["horizon", str(geo), "--x", "0", "--y", "0", "--lon", "77.5",
+                                    "--lat", "18.4"])
+    assert both.exit_code == 2 and "not both" in both.output

@@ -7,14 +7,16 @@ import sys
 import click
 import numpy as np
 
-from .options import (azimuth_bins_option, camera_height_option, crs_option, max_distance_option,
-                      overwrite_option, planet_option)
+from .options import (azimuth_bins_option, camera_height_option, check_point_options, crs_option,
+                      max_distance_option, overwrite_option, planet_option, point_xy)
 
 
 @click.command()
 @click.argument("dem_path", metavar="DEM", type=click.Path(dir_okay=False))
-@click.option("--x", "x", type=float, required=True, help="Easting [m] in the DEM's (projected) CRS.")
-@click.option("--y", "y", type=float, required=True, help="Northing [m] in the DEM's (projected) CRS.")
+@click.option("--x", "x", type=float, help="Easting [m] in the work CRS (see skyfix info DEM).")
+@click.option("--y", "y", type=float, help="Northing [m] in the work CRS.")
+@click.option("--lon", type=float, help="Longitude [deg] on the DEM's body, instead of --x/--y.")
+@click.option("--lat", type=float, help="Latitude [deg] on the DEM's body.")
 @camera_height_option
 @planet_option
 @azimuth_bins_option
@@ -24,8 +26,8 @@ from .options import (azimuth_bins_option, camera_height_option, crs_option, max
 @click.option("--plot", type=click.Path(dir_okay=False), default=None,
               help="Draw the profile to this file (.png, .jpg, .pdf or .svg).")
 @overwrite_option
-def horizon(dem_path, x, y, camera_height_m, planet, azimuth_bins, max_distance_m, crs, as_json,
-            plot, overwrite):
+def horizon(dem_path, x, y, lon, lat, camera_height_m, planet, azimuth_bins, max_distance_m, crs,
+            as_json, plot, overwrite):
     """Render the skyline a DEM predicts from (X, Y).
 
     Elevation angles [deg] per azimuth bin (bin k centred on k*360/bins deg, clockwise from grid
@@ -36,8 +38,10 @@ def horizon(dem_path, x, y, camera_height_m, planet, azimuth_bins, max_distance_
     from ..dem import load_dem
     from ..horizon import render_horizon
 
+    check_point_options(x, y, lon, lat)
     check_outputs(overwrite, ("--plot", plot, PLOT_FORMATS))
     dem = load_dem(dem_path, crs=crs)
+    x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
     hb = render_horizon(dem, x, y, camera_height_m=camera_height_m, planet=planet,
                         azimuth_bins=azimuth_bins, max_distance_m=max_distance_m)
     el = hb.elevation_deg[0].astype(float)
@@ -45,7 +49,8 @@ def horizon(dem_path, x, y, camera_height_m, planet, azimuth_bins, max_distance_
     az = hb.azimuth_deg
     if as_json:
         click.echo(to_json({
-            "x": x, "y": y, "crs": dem.crs_name or dem.crs_wkt, "ground_z_m": float(hb.ground_z_m[0]),
+            "x": x, "y": y, "crs": dem.crs_name or dem.crs_wkt, **_lonlat(dem.crs_wkt, x, y),
+            "ground_z_m": float(hb.ground_z_m[0]),
             "camera_height_m": camera_height_m, "planet": hb.planet.to_attr(),
             "azimuth_deg": np.round(az, 6), "elevation_deg": np.round(el, 4),
             "ray_length_m": np.round(length, 2),
@@ -122,3 +127,10 @@ def _plot(path, az, el, length, x, y, dem, max_distance_m):
         save_figure(fig, path, dpi=120)
     finally:
         plt.close(fig)
+
+
+def _lonlat(crs_wkt, x, y) -> dict:
+    from ..pose.fix import crs_and_lonlat
+
+    _, lon, lat = crs_and_lonlat(crs_wkt, x, y)
+    return {"lon": lon, "lat": lat}

@@ -11,7 +11,7 @@ import sys
 import click
 
 from ..errors import ParameterError
-from .options import camera_height
+from .options import camera_height, check_point_options, point_xy
 
 
 def _check_source(acq_dir, profile_path):
@@ -167,8 +167,10 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
 @click.option("--db", "db_path", type=click.Path(), help="Skyline database (zarr).")
 @click.option("--dem", "dem_path", type=click.Path(dir_okay=False),
               help="DEM for sub-spacing refinement and attitude (needed without --db).")
-@click.option("--prior-x", type=float, help="Prior position x [m] in the DEM's CRS.")
+@click.option("--prior-x", type=float, help="Prior position x [m] in the work CRS.")
 @click.option("--prior-y", type=float, help="Prior position y [m].")
+@click.option("--prior-lon", type=float, help="Prior longitude [deg] on the DEM's body (for --prior-x).")
+@click.option("--prior-lat", type=float, help="Prior latitude [deg] (for --prior-y).")
 @click.option("--prior-radius-m", type=float, help="Prior search radius [m].")
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Fix JSON (default stdout).")
 @click.option("--geojson", type=click.Path(dir_okay=False), help="Also write the fix as GeoJSON.")
@@ -181,8 +183,8 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
 @click.option("--force", is_flag=True,
               help="Use a --dem other than the one the database was built from (the fix says so).")
-def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_radius_m, out,
-           geojson, score_map, plot, preset, overwrite, force):
+def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_lon, prior_lat,
+           prior_radius_m, out, geojson, score_map, plot, preset, overwrite, force):
     """Find position, heading and attitude from an acquisition (or a profile)."""
     import math
 
@@ -191,19 +193,18 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_rad
     # Everything that can be refused is refused before the search (minutes) and before any
     # output is written.
     _check_source(acq_dir, profile_path)
-    if (prior_x is None) != (prior_y is None):
-        raise ParameterError("give both --prior-x and --prior-y")
-    for name, v in (("--prior-x", prior_x), ("--prior-y", prior_y)):
-        if v is not None and not math.isfinite(v):
-            raise ParameterError(f"{name} must be a finite coordinate [m], got {v}")
+    check_point_options(prior_x, prior_y, prior_lon, prior_lat, xname="--prior-x", yname="--prior-y",
+                        lonname="--prior-lon", latname="--prior-lat", required=False)
+    have_prior = prior_x is not None or prior_lon is not None
     if prior_radius_m is not None and not (math.isfinite(prior_radius_m) and prior_radius_m > 0):
         raise ParameterError(f"--prior-radius-m must be a finite number of metres > 0, got {prior_radius_m}")
     if db_path is None and dem_path is None:
         raise ParameterError("give --db DB (and optionally --dem) or --dem with a prior area")
-    if db_path is None and (prior_x is None or prior_radius_m is None):
-        raise ParameterError("without --db give --prior-x, --prior-y and --prior-radius-m")
-    if db_path is not None and prior_x is not None and prior_radius_m is None:
-        raise ParameterError("--prior-x/--prior-y need --prior-radius-m")
+    if db_path is None and (not have_prior or prior_radius_m is None):
+        raise ParameterError("without --db give --prior-x, --prior-y (or --prior-lon, --prior-lat) "
+                             "and --prior-radius-m")
+    if db_path is not None and have_prior and prior_radius_m is None:
+        raise ParameterError("a prior position needs --prior-radius-m")
     if score_map is not None and db_path is None:
         raise ParameterError("--score-map needs --db (the map is the database's score)")
     check_outputs(overwrite, ("--output", out, None), ("--geojson", geojson, None),
@@ -231,7 +232,8 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_rad
     from ..match import PRESETS
     from ..pose import PoseConfig, locate as _locate
 
-    prior = (prior_x, prior_y) if prior_x is not None else None
+    prior = point_xy(prior_x, prior_y, prior_lon, prior_lat,
+                     getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else ""))
     fix, mres = _locate(prof, db=db, dem=dem, prior_xy=prior, prior_radius_m=prior_radius_m,
                         prior_pitch_deg=pp, prior_roll_deg=pr, camera_height_m=cam_h,
                         config=PoseConfig(match=PRESETS[preset]), return_match=True,
@@ -251,8 +253,10 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_rad
 @click.option("--profile", "profile_path", type=click.Path(dir_okay=False),
               help="Body-frame profile JSON instead of an acquisition folder.")
 @click.option("--dem", "dem_path", required=True, type=click.Path(dir_okay=False))
-@click.option("--x", "x", required=True, type=float, help="Rough position x [m].")
-@click.option("--y", "y", required=True, type=float, help="Rough position y [m].")
+@click.option("--x", "x", type=float, help="Rough position x [m] in the work CRS.")
+@click.option("--y", "y", type=float, help="Rough position y [m].")
+@click.option("--lon", type=float, help="Rough longitude [deg] on the DEM's body, instead of --x/--y.")
+@click.option("--lat", type=float, help="Rough latitude [deg].")
 @click.option("--heading-prior-deg", type=float,
               help="Heading prior [deg], clockwise from true north (from grid north with "
                    "--prior-north grid). Without one, the full circle is searched.")
@@ -264,8 +268,8 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_rad
               help="Camera height [m] (default: the acquisition's).")
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Heading JSON (default stdout).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output.")
-def heading(acq_dir, profile_path, dem_path, x, y, heading_prior_deg, prior_north, window_deg,
-            camera_height_m, out, overwrite):
+def heading(acq_dir, profile_path, dem_path, x, y, lon, lat, heading_prior_deg, prior_north,
+            window_deg, camera_height_m, out, overwrite):
     """Find the heading only, from a rough position."""
     import math
 
@@ -277,14 +281,15 @@ def heading(acq_dir, profile_path, dem_path, x, y, heading_prior_deg, prior_nort
     _check_source(acq_dir, profile_path)
     if heading_prior_deg is None:  # no prior: the whole circle
         heading_prior_deg, window_deg = 0.0, 180.0
-    for name, v in (("--x", x), ("--y", y), ("--heading-prior-deg", heading_prior_deg)):
-        if not math.isfinite(v):
-            raise ParameterError(f"{name} must be a finite number, got {v}")
+    check_point_options(x, y, lon, lat)
+    if not math.isfinite(heading_prior_deg):
+        raise ParameterError(f"--heading-prior-deg must be a finite number, got {heading_prior_deg}")
     if not (math.isfinite(window_deg) and 0 < window_deg <= 180):
         raise ParameterError(f"--window-deg must be within (0, 180] deg, got {window_deg}")
     check_outputs(overwrite, ("--output", out, None))
     prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path)
     dem = load_dem(dem_path)
+    x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
     h = camera_height_m if camera_height_m is not None else (cam_h if cam_h is not None else 1.5)
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     if prior_north == "true" and not math.isfinite(conv) and window_deg < 180:

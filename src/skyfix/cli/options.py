@@ -50,3 +50,33 @@ max_distance_option = click.option(
 crs_option = click.option(
     "--crs", default=None, help="Metric CRS to reproject a geographic DEM to (default: its UTM zone).")
 overwrite_option = click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
+
+
+def check_point_options(x, y, lon, lat, *, xname="--x", yname="--y", lonname="--lon",
+                        latname="--lat", required=True) -> None:
+    """A point given as x/y [m] or lon/lat [deg], each pair whole and finite (checked before any
+    file is read); with ``required`` one of the two pairs."""
+    import math
+
+    for a, b, na, nb in ((x, y, xname, yname), (lon, lat, lonname, latname)):
+        if (a is None) != (b is None):
+            raise ParameterError(f"give both {na} and {nb}")
+        for n, v in ((na, a), (nb, b)):
+            if v is not None and not math.isfinite(v):
+                raise ParameterError(f"{n} must be a finite number, got {v}")
+    if x is not None and lon is not None:
+        raise ParameterError(f"give {xname}/{yname} or {lonname}/{latname}, not both")
+    if required and x is None and lon is None:
+        raise ParameterError(f"give {xname} and {yname} [m] (or {lonname} and {latname} [deg])")
+
+
+def point_xy(x, y, lon, lat, crs_wkt):
+    """(x, y) [m] in the work CRS: the given x/y, or lon/lat [deg] on the CRS's body; None when
+    neither was given."""
+    if lon is None:
+        return (x, y) if x is not None else None
+    from ..workcrs import lonlat_to_xy
+
+    if not crs_wkt:
+        raise ParameterError("--lon/--lat need a DEM or database with a CRS")
+    return lonlat_to_xy(crs_wkt, lon, lat)
