@@ -14,6 +14,7 @@ Scenarios (``design.md``):
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import resource
@@ -56,6 +57,7 @@ class EvalConfig:
     planet: str | None = None  # None: the DEM's body
     skylines: str = "detect"
     tilt_deg: float = 15.0
+    map_errors: bool = False  # render every set from a world that differs from the map
 
     def __post_init__(self):
         if self.skylines not in ("detect", "truth"):
@@ -94,6 +96,14 @@ def db_area(db, margin_m: float = 0.0):
             float(xs.max()) - margin_m, float(ys.max()) - margin_m)
 
 
+def map_offset_of(case_dir: Path) -> tuple[float, float]:
+    """(dx, dy) [m] from a simulated case's truth to where its terrain lies on the map (0, 0 when
+    the world was the map): read from the simulator's record, as the truth is."""
+    data = json.loads((Path(case_dir) / "acquisition.json").read_text())
+    off = ((data.get("simulation") or {}).get("map_errors") or {}).get("map_offset_m") or (0.0, 0.0)
+    return float(off[0]), float(off[1])
+
+
 def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.random.Generator,
              case_index: int) -> tuple[CaseResult, dict]:
     """One case through the board pipeline; returns the result and what the figures need."""
@@ -105,6 +115,7 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
     res = CaseResult(case=case_dir.name, set=set_name, scenario=cfg.scenario, truth_x=truth.x,
                      truth_y=truth.y, truth_yaw_deg=truth.yaw_deg, truth_pitch_deg=truth.pitch_deg,
                      truth_roll_deg=truth.roll_deg)
+    res.map_offset_x_m, res.map_offset_y_m = map_offset_of(case_dir)
     extra: dict = {}
     try:
         acq = load_acquisition(case_dir)
@@ -165,7 +176,7 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
     report.html under ``out``. Returns the report's path."""
     from ._io import check_can_write
     from .dem import load_dem
-    from .simulate import plan_set, simulate_set
+    from .simulate import MapErrors, plan_set, simulate_set
 
     # Everything that can be refused is checked before ``out`` is created, so a refusal leaves
     # nothing behind.
@@ -200,7 +211,8 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
         t0 = time.perf_counter()
         case_dirs = simulate_set(dem, set_name, cfg.cases, cfg.seed + s_i, out / "cases" / set_name,
                                  area=area, overwrite=True, tilt_deg=cfg.tilt_deg,
-                                 camera_height_m=cfg.camera_height_m, planet=cfg.planet)
+                                 camera_height_m=cfg.camera_height_m, planet=cfg.planet,
+                                 map_errors=MapErrors() if cfg.map_errors else None)
         t_sim = (time.perf_counter() - t0) / max(len(case_dirs), 1)
         for k, cdir in enumerate(case_dirs):
             res, extra = run_case(Path(cdir), set_name, cfg, dem, db, rng, k)

@@ -16,7 +16,7 @@ from .options import overwrite_option
 @click.option("--scenario", type=click.IntRange(1, 3), required=True,
               help="1: 7x7 km database search; 2: 40x40 m prior, DEM only; 3: heading only.")
 @click.option("--sets", default="REF", show_default=True,
-              help="Comma-separated robustness sets: REF,HREL,SCOM,LREL,CLUT,OCCL,COND.")
+              help="Comma-separated robustness sets: REF,HREL,SCOM,LREL,CLUT,OCCL,COND,DEMERR.")
 @click.option("--cases", type=int, default=10, show_default=True, help="Cases per set.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the draws, >= 0.")
 @click.option("--db", "db_path", type=click.Path(file_okay=False), default=None,
@@ -29,10 +29,13 @@ from .options import overwrite_option
               help="Mast tilt of the simulated frames [deg] (SCOM sets its own).")
 @click.option("--skylines", type=click.Choice(["detect", "truth"]), default="detect", show_default=True,
               help="'truth' bypasses detection with the simulator's exact skylines (diagnosis only).")
+@click.option("--map-errors", is_flag=True,
+              help="Render every set from a world that differs from the map (as DEMERR does); "
+                   "position errors are then counted beyond the simulated misregistration.")
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @overwrite_option
 def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height_m, tilt_deg, skylines,
-             out, overwrite):
+             map_errors, out, overwrite):
     """Simulate cases, run the board pipeline, and write results.csv, tables, figures and
     report.html to OUT."""
     from ..evaluate import EvalConfig
@@ -42,7 +45,7 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
     cfg = EvalConfig(scenario=scenario, sets=tuple(s.strip().upper() for s in sets.split(",") if s.strip()),
                      cases=cases, seed=seed, area=tuple(area) if area else None,
                      camera_height_m=camera_height_m, skylines=skylines,
-                     tilt_deg=tilt_deg)
+                     tilt_deg=tilt_deg, map_errors=map_errors)
     # The command that regenerates the report, as typed (for the report's own footer).
     args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
     command = "skyfix evaluate " + " ".join(shlex.quote(a) for a in args)

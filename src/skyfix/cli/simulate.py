@@ -73,7 +73,7 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
 
 @click.command("simulate-set")
 @click.argument("dem", type=click.Path(dir_okay=False))
-@click.option("--set", "name", required=True, help="REF, HREL, SCOM, LREL, CLUT, OCCL or COND.")
+@click.option("--set", "name", required=True, help="REF, HREL, SCOM, LREL, CLUT, OCCL, COND or DEMERR.")
 @click.option("--cases", type=int, default=10, show_default=True, help="Number of cases.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the draws, >= 0.")
 @click.option("--area", type=float, nargs=4, default=None, metavar="XMIN YMIN XMAX YMAX",
@@ -89,11 +89,16 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
 @click.option("--planet", default=None,
               help="earth, mars, moon or a radius [m]; default: the body of the DEM's CRS (an Earth CRS may stand in for any body).")
 @click.option("--crs", default=None, help="Target CRS when the DEM must be reprojected.")
+@click.option("--map-errors", is_flag=True,
+              help="Render from a world that differs from the map DEM (DEMERR does by default).")
+@click.option("--world-dem", type=click.Path(dir_okay=False), default=None,
+              help="Render from this second DEM of the same place instead of DEM (cases are still "
+                   "drawn on DEM, the map).")
 @click.option("--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
 @click.option("--overwrite", is_flag=True,
               help="Replace a non-empty --out, whole, once the new one is complete.")
 def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, camera_height_m, tilt_deg,
-                 planet, crs, out, overwrite):
+                 planet, crs, map_errors, world_dem, out, overwrite):
     """Render a named robustness set of acquisitions (one subfolder per case)."""
     from ..dem import load_dem
     from ..errors import ParameterError
@@ -107,12 +112,20 @@ def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, 
     # Fail on bad options before loading anything (simulate_set checks them all again).
     check_render_options(mode=mode, camera=camera, camera_height_m=camera_height_m, tilt_deg=tilt_deg,
                   planet=planet, seed=seed, frames=frames, pano_size=pano_size)
+    if map_errors and world_dem:
+        raise ParameterError("give --map-errors or --world-dem, not both")
     _check_out(out, overwrite, dem)
     d = load_dem(dem, crs=crs)
+    world = None
+    if world_dem is not None:
+        world = load_dem(world_dem, crs=d.crs_wkt)  # the map's work CRS, so positions agree
+    from ..simulate import MapErrors
+
     with writing_to(out):
         folders = run_set(d, name, cases, seed, out, area=area or None, camera=camera, mode=mode,
                           frames=frames, camera_height_m=camera_height_m, planet=planet,
-                          overwrite=overwrite, tilt_deg=tilt_deg, pano_size=pano_size, progress=True)
+                          overwrite=overwrite, tilt_deg=tilt_deg, pano_size=pano_size, progress=True,
+                          map_errors=MapErrors() if map_errors else None, world=world)
     click.echo(f"{len(folders)} cases in {out}")
 
 

@@ -11,7 +11,8 @@ DEM lacks, ``NAME.visible.skyline.json`` holds the skyline a camera really sees.
 
 :class:`Conditions` (:mod:`.conditions`) adds dust, clouds, rocks, glare, exposure faults and blur,
 each with a strength in [0, 1]. :func:`simulate_set` (:mod:`.sets`) draws the named robustness
-sets (:data:`SETS`).
+sets (:data:`SETS`), optionally rendered from a world that differs from the map (:mod:`.world`:
+the DEMERR set, or any set with map errors).
 """
 
 from .acquisition import (PANO_ELEVATION_TOP_DEG, PANO_HEIGHT, PANO_VFOV_DEG, PANO_WIDTH,
@@ -19,10 +20,12 @@ from .acquisition import (PANO_ELEVATION_TOP_DEG, PANO_HEIGHT, PANO_VFOV_DEG, PA
                           normalise_yaw, simulate_acquisition)
 from .conditions import Conditions, as_conditions
 from .scene import Scene, make_scene
-from .sets import SETS, default_area, plan_set, simulate_set
+from .sets import MAP_ERROR_SETS, SETS, default_area, plan_set, simulate_set
 from .shading import shade
+from .world import MapErrors, map_offset, world_dem
 
-__all__ = ["PANO_ELEVATION_TOP_DEG", "PANO_HEIGHT", "PANO_VFOV_DEG", "PANO_WIDTH", "SETS",
+__all__ = ["MAP_ERROR_SETS", "MapErrors", "map_offset", "world_dem",
+           "PANO_ELEVATION_TOP_DEG", "PANO_HEIGHT", "PANO_VFOV_DEG", "PANO_WIDTH", "SETS",
            "Conditions", "Scene", "as_conditions", "check_attitude_prior", "check_render_options",
            "check_seed", "default_area", "frame_pans", "make_scene", "normalise_yaw", "plan_set",
            "shade", "simulate_acquisition", "simulate_set"]

@@ -147,7 +147,8 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
                          pano_size: tuple[int, int] = (PANO_WIDTH, PANO_HEIGHT),
                          elevation_top_deg: float = PANO_ELEVATION_TOP_DEG,
                          vfov_deg: float = PANO_VFOV_DEG,
-                         sun_az_deg: float | None = None, sun_el_deg: float | None = None) -> Path:
+                         sun_az_deg: float | None = None, sun_el_deg: float | None = None,
+                         simulation_meta: dict | None = None) -> Path:
     """Render one acquisition into folder ``out`` and return it.
 
     Every option is checked before ``out`` is touched; the acquisition is rendered into a hidden
@@ -169,6 +170,8 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
         the true values
     pano_size, elevation_top_deg, vfov_deg : panorama size [px] and vertical extent [deg]
     sun_az_deg, sun_el_deg : [deg] sun direction; default drawn from ``seed`` (glare puts it in view)
+    simulation_meta : more to record under ``simulation`` in ``acquisition.json`` (a set's map
+        errors: how the world rendered here differs from the map)
     """
     cam, pl, pans = check_render_options(
         mode=mode, camera=camera, camera_height_m=camera_height_m, tilt_deg=tilt_deg, planet=planet,
@@ -235,6 +238,7 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
 
         acq = replace(acq, prior_pitch_deg=prior[0], prior_roll_deg=prior[1])
         sim = {
+            **(simulation_meta or {}),
             "planet": pl.name, "seed": int(seed), "conditions": cond.active(), "mode": mode,
             "dem": {"source": dem.source, "checksum": dem.checksum, "crs": dem.crs_name},
             "ground_z_m": float(origin[2] - camera_height_m),

@@ -19,6 +19,7 @@ from ..planets import resolve_planet
 from .acquisition import (PANO_HEIGHT, PANO_WIDTH, check_render_options, check_seed,
                           simulate_acquisition)
 from .folders import check_out_folder, staged_folder
+from .world import MapErrors, map_offset, world_dem
 
 
 
@@ -32,7 +33,12 @@ SETS = {
     "CLUT": "clutter: dust (and clouds on Earth)",
     "OCCL": "occlusion: boulders near the rover that the DEM lacks",
     "COND": "bad light: glare (sun in view), over- or under-exposure",
+    "DEMERR": "the map is not the world: nominal imaging of a world DEM that differs from the map "
+              "(2x finer with fractal detail, 2 m rms correlated height error, spikes and pits, "
+              "3 m misregistration; see skyfix.simulate.world)",
 }
+#: sets whose world differs from the map by default
+MAP_ERROR_SETS = {"DEMERR"}
 
 
 def default_area(dem: Dem, margin_m: float | None = None) -> tuple[float, float, float, float]:
@@ -134,7 +140,8 @@ def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
                  camera: str | Camera = "navcam", mode: str = "frames", frames: int | None = None,
                  camera_height_m: float = 1.5, planet=None, overwrite: bool = False,
                  pano_size: tuple[int, int] = (PANO_WIDTH, PANO_HEIGHT),
-                 progress: bool = False, tilt_deg: float = 0.0) -> list[Path]:
+                 progress: bool = False, tilt_deg: float = 0.0, map_errors: MapErrors | None = None,
+                 world: Dem | None = None) -> list[Path]:
     """Render a named robustness set (:data:`SETS`) into ``out/case_NNN`` folders.
 
     Positions are drawn uniformly (off-grid) inside ``area`` (XMIN, YMIN, XMAX, YMAX) [m], default
@@ -144,6 +151,10 @@ def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
     ``overwrite``) only by a complete set.
     tilt_deg : [deg] mast tilt of every frame (mountain skylines sit high: 10-15 deg keeps them in
         a navcam's view), except where the set chooses its own (SCOM)
+    map_errors : render every case from :func:`skyfix.simulate.world.world_dem` of ``dem`` with
+        these errors (DEMERR: :class:`MapErrors` defaults unless given), one world per set drawn
+        from ``seed``; each case's ``acquisition.json`` records the errors and the map offset
+    world : render from this DEM instead (``--world-dem``: any second DEM of the same place)
     """
     # Everything is checked and planned before ``out`` is touched (or a progress bar shown), and
     # the set is rendered into a hidden sibling that replaces ``out`` only once complete.
@@ -151,6 +162,16 @@ def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
                   planet=planet, seed=seed, frames=frames, pano_size=pano_size)
     plans = plan_set(dem, name, cases, seed, area=area, camera=camera, mode=mode,
                      camera_height_m=camera_height_m, planet=planet)
+    if map_errors is None and str(name).upper() in MAP_ERROR_SETS and world is None:
+        map_errors = MapErrors()
+    sim_meta = {}
+    if world is not None:
+        sim_meta["world"] = {"source": world.source, "sha256": world.checksum}
+    elif map_errors is not None:
+        world = world_dem(dem, map_errors, seed)
+        sim_meta["map_errors"] = {**map_errors.to_dict(), "seed": int(seed),
+                                  "map_offset_m": list(map_offset(map_errors, seed))}
+    render = world if world is not None else dem
     out = check_out_folder(out, overwrite)
     with staged_folder(out, overwrite) as tmp:
         it = plans
@@ -160,11 +181,12 @@ def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
             it = tqdm(plans, desc=f"set {name.upper()}", unit="case")
         for p in it:
             simulate_acquisition(
-                dem, p["truth"], tmp / p["folder"], camera=camera, mode=mode, frames=frames,
+                render, p["truth"], tmp / p["folder"], camera=camera, mode=mode, frames=frames,
                 camera_height_m=camera_height_m, planet=planet, pano_size=pano_size,
-                **{"tilt_deg": tilt_deg, **p["kwargs"]})
+                simulation_meta=sim_meta, **{"tilt_deg": tilt_deg, **p["kwargs"]})
         listing = {
-            "set": name.upper(), "description": SETS[name.upper()], "seed": int(seed), "cases": [
+            "set": name.upper(), "description": SETS[name.upper()], "seed": int(seed), **sim_meta,
+            "cases": [
                 {"folder": p["folder"], "truth": asdict(p["truth"]),
                  **{k: v for k, v in p["kwargs"].items()}} for p in plans],
         }

@@ -1,0 +1,108 @@
+"""The map is not the world: the world DEM differs from the map by the error model's statistics,
+and the DEMERR set renders from it while recording where the truth lies on the map."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from skyfix.dem import fractal_dem
+from skyfix.errors import ParameterError
+from skyfix.simulate import MapErrors, map_offset, simulate_set, world_dem
+
+
+@pytest.fixture(scope="module")
+def map_dem():
+    return fractal_dem(200, 20.0, relief_m=800.0, seed=3)
+
+
+def _matched(world, m, errors, seed, n=20000, rng=0):
+    """World minus map heights [m] at random points, the map sampled where the world's terrain
+    lies on it (the misregistration undone)."""
+    r = np.random.default_rng(rng)
+    xmin, ymin, xmax, ymax = m.bounds
+    x = r.uniform(xmin + 100, xmax - 100, n)
+    y = r.uniform(ymin + 100, ymax - 100, n)
+    ox, oy = map_offset(errors, seed)
+    return x, y, world.height_at(x, y) - m.height_at(x + ox, y + oy)
+
+
+def test_world_differs_from_the_map_by_the_model(map_dem):
+    e = MapErrors(spikes_per_km2=0.0)
+    w = world_dem(map_dem, e, seed=4)
+    assert w.dx == pytest.approx(10.0) and w.body == map_dem.body
+    ox, oy = map_offset(e, 4)
+    assert math.hypot(ox, oy) == pytest.approx(3.0)
+    x, y, d = _matched(w, map_dem, e, 4)
+    # 2 m correlated + 1 m detail + the map's own bilinear vs the world's cubic: about 2.3 m
+    rms = float(np.sqrt(np.mean(d ** 2)))
+    assert 2.0 < rms < 2.8 and abs(float(np.mean(d))) < 0.3
+    # the misregistration is real: undoing it explains more than not undoing it
+    plain = w.height_at(x, y) - map_dem.height_at(x, y)
+    assert np.sqrt(np.mean(plain ** 2)) > rms + 0.2
+
+
+def _component(map_dem, seed, **only):
+    """The part of the world's difference from the map that one error term makes: the world with
+    that term minus the world without it (same seed, everything else off) [fine grid, m]."""
+    off = dict(detail_rms_m=0.0, height_rms_m=0.0, spikes_per_km2=0.0, shift_m=0.0)
+    with_it = world_dem(map_dem, MapErrors(**{**off, **only}), seed=seed).z
+    without = world_dem(map_dem, MapErrors(**off), seed=seed).z
+    return (with_it - without).astype(np.float64)
+
+
+def test_the_height_error_is_spatially_correlated_over_its_length(map_dem):
+    """Gaussian-filtered white noise: autocorrelation exp(-lag^2 / (4 L^2)), 0.78 at L = 150 m."""
+    e = _component(map_dem, 1, height_rms_m=2.0, correlation_m=150.0)
+    assert float(e.std()) == pytest.approx(2.0, rel=0.01)
+    lag = 15  # fine cells of 10 m: 150 m
+    near = np.corrcoef(e[:, :-lag].ravel(), e[:, lag:].ravel())[0, 1]
+    far = np.corrcoef(e[:, :-100].ravel(), e[:, 100:].ravel())[0, 1]  # 1 km
+    assert 0.7 < near < 0.85 and abs(far) < 0.1
+
+
+def test_spikes_and_pits_appear_at_their_rate(map_dem):
+    e = _component(map_dem, 7, spikes_per_km2=5.0, spike_m=20.0)
+    hit = np.abs(e) > 1.0
+    area_km2 = e.size * 10.0 * 10.0 / 1e6
+    expected = 5.0 * area_km2 * 4 / e.size  # spikes of 2 x 2 fine cells
+    assert 0.5 * expected < hit.mean() < 1.5 * expected
+    assert np.abs(e[hit]).min() >= 10.0 - 1e-3 and np.abs(e[hit]).max() <= 40.0 + 1e-3
+    assert (e[hit] > 0).any() and (e[hit] < 0).any()  # spikes and pits
+
+
+def test_map_errors_are_checked():
+    with pytest.raises(ParameterError, match="shift_m"):
+        MapErrors(shift_m=-1.0)
+    with pytest.raises(ParameterError, match="refine"):
+        MapErrors(refine=0)
+
+
+def test_demerr_set_renders_the_world_and_records_the_offset(tmp_path, map_dem):
+    out = tmp_path / "demerr"
+    folders = simulate_set(map_dem, "DEMERR", 1, 5, out, camera="wide", frames=1)
+    acq = json.loads((folders[0] / "acquisition.json").read_text())
+    me = acq["simulation"]["map_errors"]
+    assert me["shift_m"] == 3.0 and me["map_offset_m"] == pytest.approx(list(map_offset(MapErrors(), 5)))
+    listing = json.loads((out / "set.json").read_text())
+    assert listing["map_errors"]["map_offset_m"] == me["map_offset_m"]
+    # the frame's truth skyline comes from the world, not the map
+    from skyfix.formats import read_skyline_json
+    from skyfix.simulate import simulate_acquisition
+
+    ref = simulate_acquisition(map_dem, _truth(acq), tmp_path / "ref", camera="wide", frames=1,
+                               seed=acq["simulation"]["seed"])
+    a = np.asarray(read_skyline_json(folders[0] / "frame_000.skyline.json").rows, float)
+    b = np.asarray(read_skyline_json(ref / "frame_000.skyline.json").rows, float)
+    both = np.isfinite(a) & np.isfinite(b)
+    assert both.sum() > 100 and np.abs(a - b)[both].mean() > 0.05
+
+
+def _truth(acq):
+    from skyfix.formats import Truth
+
+    t = acq["truth"]
+    return Truth(t["x"], t["y"], t["yaw_deg"], t["pitch_deg"], t["roll_deg"])
