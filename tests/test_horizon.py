@@ -168,3 +168,31 @@ def test_points_on_dem_grid_lines_render_and_match_the_reference():
     fast = render_horizon(dem, x, y, azimuth_bins=4, max_distance_m=20_000)
     ref, _ = reference_horizon(dem, x, y, azimuth_bins=4, max_distance_m=20_000)
     np.testing.assert_allclose(fast.elevation_deg[0], ref, atol=0.01)
+
+
+def test_skyline_distance_names_the_point_that_makes_the_skyline():
+    """The reported distance is where the skyline terrain lies: the DEM's height there, seen from
+    the camera with the curvature drop, gives the skyline's elevation (a direct recomputation)."""
+    import math
+
+    from skyfix.dem import fractal_dem
+    from skyfix.planets import EARTH
+
+    dem = fractal_dem(160, 30.0, relief_m=900.0, seed=8)
+    xmin, ymin, xmax, ymax = dem.bounds
+    rng = np.random.default_rng(3)
+    xs = rng.uniform(xmin + 500, xmax - 500, 6)
+    ys = rng.uniform(ymin + 500, ymax - 500, 6)
+    hb = render_horizons(dem, xs, ys, azimuth_bins=90)
+    az = np.radians(hb.azimuth_deg)
+    checked = 0
+    for k in range(xs.size):
+        zc = hb.ground_z_m[k] + hb.camera_height_m
+        d = hb.skyline_distance_m[k].astype(float)
+        ok = np.isfinite(d) & np.isfinite(hb.elevation_deg[k])
+        z = dem.height_at(xs[k] + d[ok] * np.sin(az[ok]), ys[k] + d[ok] * np.cos(az[ok]))
+        el = np.degrees(np.arctan((z - zc) / d[ok] - EARTH.curvature_coeff * d[ok]))
+        inside = np.isfinite(z)  # a skyline on the DEM's very edge reads no height there
+        assert np.abs(el - hb.elevation_deg[k][ok])[inside].max() < 0.01
+        checked += inside.sum()
+    assert checked > 400

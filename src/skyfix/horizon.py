@@ -42,6 +42,8 @@ class HorizonBatch:
     ray_length_m : float32 (N, bins) [m] how far each ray went (the DEM edge or max distance)
     ground_z_m : float64 (N,) [m] DEM height under each point
     camera_height_m : [m]; max_distance_m : [m]; planet
+    skyline_distance_m : float32 (N, bins) [m] horizontal distance to the terrain point that makes
+        the skyline (NaN where none): how much a DEM height error there moves it
     """
 
     x: np.ndarray
@@ -52,6 +54,7 @@ class HorizonBatch:
     camera_height_m: float
     max_distance_m: float
     planet: Planet
+    skyline_distance_m: np.ndarray | None = None
 
     @property
     def azimuth_deg(self) -> np.ndarray:
@@ -97,13 +100,14 @@ def render_horizons(dem: Dem, x, y, *, camera_height_m: float = 1.5, planet=None
     az = np.radians(azimuth_centres(bins))
     elev = np.empty((x.size, bins), np.float32)
     length = np.empty((x.size, bins), np.float32)
+    dist = np.empty((x.size, bins), np.float32)
     ground = np.empty(x.size, np.float64)
     _render_batch(dem.z, data, offs, rows, cols, dem.x0, dem.y0, dem.dx, dem.dy, x, y,
                   float(camera_height_m), np.sin(az), np.cos(az),
                   float(max_distance_m or np.inf), planet.curvature_coeff,
-                  math.tan(math.radians(skip_tol_deg)), T_MIN_M, elev, length, ground)
+                  math.tan(math.radians(skip_tol_deg)), T_MIN_M, elev, length, ground, dist)
     return HorizonBatch(x, y, elev, length, ground, float(camera_height_m),
-                        float(max_distance_m or np.inf), planet)
+                        float(max_distance_m or np.inf), planet, dist)
 
 
 def render_horizon(dem: Dem, x: float, y: float, **kw) -> HorizonBatch:
@@ -246,7 +250,7 @@ def _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, t
 
 @numba.njit(cache=True, parallel=True, nogil=True)
 def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, caz, max_d,
-                  curv, tol, t_min, out_el, out_len, out_ground):
+                  curv, tol, t_min, out_el, out_len, out_ground, out_dist):
     ny, nx = z.shape
     n = xs.shape[0]
     nb = saz.shape[0]
@@ -280,10 +284,12 @@ def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz,
             out_len[k, b] = t_end
             if not math.isfinite(zg):
                 out_el[k, b] = np.nan
+                out_dist[k, b] = np.nan
                 continue
             best, t_seed = _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end,
                                       curv, tol, t_min, t_seed)
             out_el[k, b] = math.degrees(math.atan(best)) if best > -np.inf else np.nan
+            out_dist[k, b] = t_seed if best > -np.inf else np.nan
 
 
 def reference_horizon(dem: Dem, x: float, y: float, *, camera_height_m: float = 1.5,
