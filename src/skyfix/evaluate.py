@@ -29,7 +29,7 @@ from .report import CaseResult
 
 log = logging.getLogger(__name__)
 
-SETS = ("REF", "HREL", "SCOM", "LREL", "CLUT", "OCCL", "COND")
+SETS = ("REF", "HREL", "SCOM", "LREL", "CLUT", "OCCL", "COND", "DEMERR")  # skyfix.simulate.SETS
 #: scenario 3's position errors [m], cycled over the cases
 HEADING_PRIOR_OFFSETS_M = (0.0, 5.0, 10.0, 20.0)
 #: scenario 2's drift [m]: the prior is the truth moved by up to this much
