@@ -29,7 +29,7 @@ def test_json_output_has_the_documented_fields(tmp_dem_file):
     path = tmp_dem_file(plane_dem(4_000, 20, z0=100))
     r = run("horizon", path, "--x", 2_000, "--y", 2_000, "--azimuth-bins", 36, "--json")
     assert r.exit_code == 0, r.output
-    d = json.loads(r.output)
+    d = json.loads(r.stdout)
     assert set(d) >= {"x", "y", "crs", "ground_z_m", "camera_height_m", "azimuth_deg", "elevation_deg",
                       "ray_length_m"}
     assert d["crs"] == "EPSG:32611" and d["ground_z_m"] == pytest.approx(100.0)
@@ -53,7 +53,7 @@ def test_real_dem_point_reports_its_crs():
     path = shared_dem_path("south_glacier_20m")
     r = run("horizon", path, "--x", 601_500, "--y", 6_744_000, "--json")
     assert r.exit_code == 0, r.output
-    d = json.loads(r.output)
+    d = json.loads(r.stdout)
     assert d["crs"] == "EPSG:32607" and 1_600 < d["ground_z_m"] < 3_200
 
 

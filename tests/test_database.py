@@ -302,7 +302,7 @@ def test_info_reports_metadata_completeness_and_size(clean_db):
     assert res.exit_code == 0, res.output
     assert "24 x 20 positions at 10 m" in res.output and "9 of 9 blocks (complete)" in res.output
     res = CliRunner().invoke(cli, ["info", str(clean_db), "--json"])
-    d = json.loads(res.output)
+    d = json.loads(res.stdout)
     assert d["complete"] and d["positions"] == 480 and d["size_bytes"] > 480 * 10
 
 

@@ -136,7 +136,7 @@ def test_points_by_longitude_and_latitude_on_the_dems_body(tmp_path, terrain):
                                      str(LAT0 - 0.004), "--json"])
     by_xy = CliRunner().invoke(cli, ["horizon", str(geo), "--x", str(x), "--y", str(y), "--json"])
     assert by_ll.exit_code == 0 and by_xy.exit_code == 0, by_ll.output
-    a, b = json.loads(by_ll.output), json.loads(by_xy.output)
+    a, b = json.loads(by_ll.stdout), json.loads(by_xy.stdout)
     assert a["elevation_deg"] == b["elevation_deg"]
     assert abs(b["lon"] - (LON0 + 0.005)) < 1e-9 and abs(b["lat"] - (LAT0 - 0.004)) < 1e-9
     assert a["planet"]["name"] == "mars"

@@ -284,7 +284,7 @@ def test_cli_locate_and_heading_from_a_profile(world, tmp_path):
                                  str(dem_path), "--x", "815", "--y", "700",
                                  "--heading-prior-deg", "305"])
     assert r.exit_code == 0, r.output
-    assert abs(_ang(json.loads(r.output)["heading_deg"] - 300.0)) < 1.0
+    assert abs(_ang(json.loads(r.stdout)["heading_deg"] - 300.0)) < 1.0
 
 
 def test_tilted_query_with_zero_prior_is_located(world):

@@ -58,6 +58,7 @@ class EvalConfig:
     skylines: str = "detect"
     tilt_deg: float = 15.0
     map_errors: bool = False  # render every set from a world that differs from the map
+    dem_sigma_m: float | None = None  # PoseConfig.dem_sigma_m for the cases' fixes
 
     def __post_init__(self):
         if self.skylines not in ("detect", "truth"):
@@ -145,9 +146,12 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
                 kw = {"prior_xy": (truth.x + r * math.sin(ang), truth.y + r * math.cos(ang)),
                       "prior_radius_m": DRIFT_M * 1.25}
                 res.prior_offset_m = r
+            from .pose import PoseConfig
+
             fix = locate(profile, db=db if cfg.scenario == 1 else None, dem=dem,
                          prior_pitch_deg=acq.prior_pitch_deg, prior_roll_deg=acq.prior_roll_deg,
-                         camera_height_m=acq.camera_height_m, planet=cfg.planet, **kw)
+                         camera_height_m=acq.camera_height_m, planet=cfg.planet,
+                         config=PoseConfig(dem_sigma_m=cfg.dem_sigma_m), **kw)
             res.fix_x, res.fix_y, res.fix_heading_deg = fix.x, fix.y, fix.grid_heading_deg
             res.fix_pitch_deg, res.fix_roll_deg = fix.pitch_deg, fix.roll_deg
             res.position_sigma_m, res.heading_sigma_deg = fix.position_sigma_m, fix.heading_sigma_deg

@@ -104,6 +104,7 @@ def write_results_csv(results: list[CaseResult], path) -> Path:
                 row = {k: v for k, v in asdict(r).items() if k != "extra"}
                 row.update(error_x_m=r.error_x_m, error_y_m=r.error_y_m,
                            position_error_m=r.position_error_m,
+                           position_error_map_m=r.position_error_map_m,
                            heading_error_deg=r.heading_error_deg, correct=r.correct)
                 w.writerow({k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in row.items()})
     return path

@@ -6,7 +6,7 @@ import click
 
 
 @click.command()
-@click.option("--out", type=click.Path(file_okay=False), default="skyfix-demo", show_default=True,
+@click.option("-o", "--out", type=click.Path(file_okay=False), default="skyfix-demo", show_default=True,
               help="Output folder: new, empty, or an earlier demo's (rebuilt).")
 @click.option("--seed", type=int, default=4, show_default=True, help="Where the rover is hidden (>= 0).")
 @click.option("--overwrite", is_flag=True,

@@ -93,7 +93,7 @@ def plot_skyline(path, img, skyline):
               help="Mask image of the same size: non-zero where the image holds data.")
 @click.option("--method", type=click.Choice(METHODS), default=DEFAULT_METHOD, show_default=True,
               help="dp: dense-graph dynamic programming; bayes: iterative sky/ground likelihoods.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("-o", "--out", "--output", "output", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the skyline JSON here (default: stdout).")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Draw the image with the skyline over it (.png, .jpg, .pdf or .svg).")

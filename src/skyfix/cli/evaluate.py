@@ -32,10 +32,12 @@ from .options import overwrite_option
 @click.option("--map-errors", is_flag=True,
               help="Render every set from a world that differs from the map (as DEMERR does); "
                    "position errors are then counted beyond the simulated misregistration.")
-@click.option("--out", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--dem-sigma-m", type=float, default=None,
+              help="The DEM's height error [m] the localiser allows for (PoseConfig.dem_sigma_m).")
+@click.option("-o", "--out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @overwrite_option
 def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height_m, tilt_deg, skylines,
-             map_errors, out, overwrite):
+             map_errors, dem_sigma_m, out, overwrite):
     """Simulate cases, run the board pipeline, and write results.csv, tables, figures and
     report.html to OUT."""
     from ..evaluate import EvalConfig
@@ -45,7 +47,7 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
     cfg = EvalConfig(scenario=scenario, sets=tuple(s.strip().upper() for s in sets.split(",") if s.strip()),
                      cases=cases, seed=seed, area=tuple(area) if area else None,
                      camera_height_m=camera_height_m, skylines=skylines,
-                     tilt_deg=tilt_deg, map_errors=map_errors)
+                     tilt_deg=tilt_deg, map_errors=map_errors, dem_sigma_m=dem_sigma_m)
     # The command that regenerates the report, as typed (for the report's own footer).
     args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
     command = "skyfix evaluate " + " ".join(shlex.quote(a) for a in args)
@@ -58,7 +60,8 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
 @click.option("--images", "images_dir", required=True, type=click.Path(file_okay=False),
               help="Folder of NAME.png with NAME.skyline.json truth (as ../shared/data/marsscapes-dev).")
 @click.option("--method", type=click.Choice(METHODS), default=DEFAULT_METHOD, show_default=True)
-@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, help="Write the table as CSV.")
+@click.option("-o", "--out", "--output", "output", type=click.Path(dir_okay=False), default=None,
+              help="Write the table as CSV.")
 @overwrite_option
 def evaluate_detect(images_dir, method, output, overwrite):
     """Score skyline detection on labelled images: mean row error, share within 3 / 10 px,

@@ -11,6 +11,7 @@ import sys
 import click
 
 from ..errors import ParameterError
+from ..progress import stage
 from .options import camera_height, check_point_options, point_xy
 
 
@@ -35,13 +36,18 @@ def _read_profile(acq_dir, profile_path):
         prior = prof.meta.get("attitude_prior") or {}
         return prof, prior.get("pitch_deg", 0.0), prior.get("roll_deg", 0.0), \
             prof.meta.get("camera_height_m")
+    import numpy as np
+
+    from ..profile import acquisition_profile
+
     acq = load_acquisition(acq_dir)
-    try:
-        from ..profile import acquisition_profile
-    except ImportError:
-        raise ParameterError("this build has no skyfix.profile stage yet: pass --profile "
-                             "PROFILE.json (made by 'skyfix profile')") from None
-    prof = acquisition_profile(acq)
+    n = len(acq.frames) or 1
+    with stage(f"skyline detected and profiled ({n} image{'s' * (n > 1)})") as st:
+        prof = acquisition_profile(acq)
+        used = prof.meta.get("frames_used")
+        obs = int(np.isfinite(prof.elevation_deg).sum())
+        st.result = (f"{used} of {n} images with a skyline, " if used is not None else "") + \
+            f"{obs} of {prof.elevation_deg.size} azimuth bins observed"
     return prof, acq.prior_pitch_deg, acq.prior_roll_deg, acq.camera_height_m
 
 
@@ -76,16 +82,21 @@ def _check_camera_height(db, db_path, cam_h) -> list[str]:
     return [msg]
 
 
-def _write_outputs(fix, out, geojson):
-    """The fix as JSON (``out``, else stdout) and GeoJSON; paths checked before any work."""
+def _write_outputs(fix, out, geojson, prov=None):
+    """The fix as JSON (``out``, else stdout) with its provenance, and GeoJSON (the fix, its
+    1-sigma circle and the candidates as features); paths checked before any work."""
     from .._io import to_json, write_json
+    from .provenance import fix_geojson
 
+    d = fix.to_dict()
+    if prov is not None:
+        d["provenance"] = prov
     if out is not None:
-        write_json(out, fix.to_dict())
+        write_json(out, d)
     else:
-        click.echo(to_json(fix.to_dict(), indent=1))
+        click.echo(to_json(d, indent=1))
     if geojson is not None:
-        write_json(geojson, {"type": "FeatureCollection", "features": [fix.to_geojson()]})
+        write_json(geojson, fix_geojson(fix))
 
 
 def _write_score_map(path, mres, db):
@@ -172,7 +183,8 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
 @click.option("--prior-lon", type=float, help="Prior longitude [deg] on the DEM's body (for --prior-x).")
 @click.option("--prior-lat", type=float, help="Prior latitude [deg] (for --prior-y).")
 @click.option("--prior-radius-m", type=float, help="Prior search radius [m].")
-@click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Fix JSON (default stdout).")
+@click.option("-o", "--out", "--output", "out", type=click.Path(dir_okay=False),
+              help="Fix JSON (default stdout).")
 @click.option("--geojson", type=click.Path(dir_okay=False), help="Also write the fix as GeoJSON.")
 @click.option("--score-map", type=click.Path(dir_okay=False),
               help="Database score map GeoTIFF (.tif; needs --db).")
@@ -212,20 +224,25 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_lon
     # The database and the DEM are opened and checked against each other, and the acquisition's
     # description read, before any image is (detection is the long part).
     db = dem = None
-    if db_path is not None:
-        from ..database import open_database
+    with stage("inputs checked") as st:
+        if db_path is not None:
+            from ..database import open_database
 
-        db = open_database(db_path)
-    if dem_path is not None:
-        from ..dem import load_dem
+            db = open_database(db_path)
+        if dem_path is not None:
+            from ..dem import load_dem
 
-        dem = load_dem(dem_path)
-    notes = _check_db_dem(db, dem, db_path, dem_path, force)
-    if acq_dir is not None:
-        from ..formats import load_acquisition
+            dem = load_dem(dem_path)
+        notes = _check_db_dem(db, dem, db_path, dem_path, force)
+        if acq_dir is not None:
+            from ..formats import load_acquisition
 
-        cam_h_declared = load_acquisition(acq_dir).camera_height_m
-        notes += _check_camera_height(db, db_path, cam_h_declared)
+            cam_h_declared = load_acquisition(acq_dir).camera_height_m
+            notes += _check_camera_height(db, db_path, cam_h_declared)
+        st.result = ", ".join(filter(None, [
+            f"database of {len(db.x_coords) * len(db.y_coords):,} positions at {db.spacing_m:g} m"
+            if db is not None else "", f"DEM {dem.shape[1]} x {dem.shape[0]} cells of {dem.cell_m:g} m"
+            if dem is not None else ""]))
     prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path)
     if profile_path is not None:
         notes += _check_camera_height(db, db_path, cam_h)
@@ -234,11 +251,24 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_lon
 
     prior = point_xy(prior_x, prior_y, prior_lon, prior_lat,
                      getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else ""))
-    fix, mres = _locate(prof, db=db, dem=dem, prior_xy=prior, prior_radius_m=prior_radius_m,
-                        prior_pitch_deg=pp, prior_roll_deg=pr, camera_height_m=cam_h,
-                        config=PoseConfig(match=PRESETS[preset]), return_match=True,
-                        notes=tuple(notes))
-    _write_outputs(fix, out, geojson)
+    with stage("located") as st:
+        fix, mres = _locate(prof, db=db, dem=dem, prior_xy=prior, prior_radius_m=prior_radius_m,
+                            prior_pitch_deg=pp, prior_roll_deg=pr, camera_height_m=cam_h,
+                            config=PoseConfig(match=PRESETS[preset]), return_match=True,
+                            notes=tuple(notes))
+        st.result = (f"({fix.x:.1f}, {fix.y:.1f}) +- {fix.position_sigma_m:.2g} m, heading "
+                     f"{fix.heading_deg:.2f} deg from true north, confidence {fix.confidence:.2f}")
+    from .provenance import provenance
+
+    prov = provenance(acq_dir=acq_dir, profile_path=profile_path, db=db, db_path=db_path, dem=dem,
+                      dem_path=dem_path, profile=prof,
+                      options={"preset": preset, "prior_xy": list(prior) if prior else None,
+                               "prior_radius_m": prior_radius_m, "force": force,
+                               "camera_height_m": cam_h},
+                      estimated=["x", "y", "heading_deg"] + ([] if dem is None else ["pitch_deg", "roll_deg"]),
+                      echoed=[] if dem is not None else ["pitch_deg", "roll_deg"],
+                      convergence_deg=fix.meridian_convergence_deg)
+    _write_outputs(fix, out, geojson, prov)
     if score_map is not None:
         _write_score_map(score_map, mres, db)
     if plot is not None:
@@ -266,7 +296,8 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_lon
               help="Search +/- this around the prior [deg] (180 without a prior).")
 @click.option("--camera-height-m", type=float, callback=camera_height,
               help="Camera height [m] (default: the acquisition's).")
-@click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Heading JSON (default stdout).")
+@click.option("-o", "--out", "--output", "out", type=click.Path(dir_okay=False),
+              help="Heading JSON (default stdout).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 def heading(acq_dir, profile_path, dem_path, x, y, lon, lat, heading_prior_deg, prior_north,
             window_deg, camera_height_m, out, overwrite):
@@ -303,8 +334,17 @@ def heading(acq_dir, profile_path, dem_path, x, y, lon, lat, heading_prior_deg, 
         click.echo(f"warning: the heading {hf.heading_deg:.1f} deg is on the edge of the window "
                    f"{heading_prior_deg:g} +- {window_deg:g} deg: the best match lies outside it "
                    "(confidence capped); check the prior or widen --window-deg", err=True)
+    from .provenance import provenance
+
+    d = hf.to_dict()
+    d["provenance"] = provenance(
+        acq_dir=acq_dir, profile_path=profile_path, dem=dem, dem_path=dem_path, profile=prof,
+        options={"heading_prior_deg": heading_prior_deg, "prior_north": prior_north,
+                 "window_deg": window_deg, "camera_height_m": h},
+        estimated=["heading_deg", "pitch_deg", "roll_deg"], echoed=["x", "y"],
+        convergence_deg=hf.meridian_convergence_deg)
     if out is not None:
-        write_json(out, hf.to_dict())
+        write_json(out, d)
     else:
-        click.echo(to_json(hf.to_dict(), indent=1))
+        click.echo(to_json(d, indent=1))
     sys.stdout.flush()

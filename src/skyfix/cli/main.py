@@ -32,7 +32,13 @@ COMMANDS = {
     "demo": ("demo", "demo", "Run the whole pipeline on bundled or generated data."),
     "evaluate": ("evaluate", "evaluate", "Evaluate a scenario on simulated cases."),
     "evaluate-detect": ("evaluate", "evaluate_detect", "Score skyline detection on labelled images."),
+    "acquisition-init": ("acquisition", "acquisition_init",
+                         "Write a checked acquisition.json for a folder of your camera's images."),
 }
+
+
+#: commands whose output a rerun continues rather than redoes
+RESUMABLE = {"build-db"}
 
 
 class LazyGroup(click.Group):
@@ -60,6 +66,13 @@ class LazyGroup(click.Group):
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
+        except KeyboardInterrupt:
+            # One line, not the tracebacks of every frame (and worker) that was interrupted.
+            name = ctx.invoked_subcommand or ""
+            hint = ("; run the same command again to resume where it stopped"
+                    if name in RESUMABLE else "")
+            click.echo(f"interrupted{hint}", err=True)
+            ctx.exit(130)
         except SkyfixError as e:
             raise UserError(str(e)) from None
         except BrokenPipeError:
@@ -82,12 +95,37 @@ class UserError(click.ClickException):
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, "--version", prog_name="skyfix")
-@click.option("-v", "--verbose", count=True, help="More log output (repeat for debug).")
-@click.option("-q", "--quiet", is_flag=True, help="Only errors.")
+@click.option("-v", "--verbose", count=True,
+              help="More log output: -v skyfix's details, -vv its debug, -vvv everyone's debug.")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors (no stage lines, no warnings).")
 def cli(verbose: int, quiet: bool):
     """skyfix: where a rover is and which way it faces, from the skyline."""
-    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    configure_logging(verbose, quiet)
+
+
+def configure_logging(verbose: int, quiet: bool) -> None:
+    """Warnings and one line per stage by default (``skyfix.stage``); skyfix's info at -v, its
+    debug at -vv; third-party libraries stay at warnings until -vvv."""
+    root = logging.getLogger()
+    for h in list(root.handlers):  # ours from an earlier call in this process (tests), no other
+        if getattr(h, "_skyfix", False):
+            root.removeHandler(h)
+    handler = logging.StreamHandler(sys.stderr)
+    handler._skyfix = True
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    root.addHandler(handler)
+    root.setLevel(logging.ERROR if quiet else (logging.DEBUG if verbose >= 3 else logging.WARNING))
+    sky = logging.getLogger("skyfix")
+    sky.setLevel(logging.ERROR if quiet else
+                 (logging.WARNING, logging.INFO, logging.DEBUG, logging.DEBUG)[min(verbose, 3)])
+    stages = logging.getLogger("skyfix.stage")
+    stages.setLevel(logging.ERROR if quiet else logging.INFO)
+    stages.propagate = False
+    for h in list(stages.handlers):
+        stages.removeHandler(h)
+    plain = logging.StreamHandler(sys.stderr)
+    plain.setFormatter(logging.Formatter("%(message)s"))
+    stages.addHandler(plain)
 
 
 def main():  # console-script entry point

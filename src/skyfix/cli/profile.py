@@ -19,7 +19,8 @@ from ..detect.options import DEFAULT_METHOD, METHODS
 @click.option("--detector", type=click.Choice(METHODS), default=DEFAULT_METHOD, show_default=True,
               help="Skyline detection method.")
 @click.option("--no-refine", is_flag=True, help="Keep the nominal pan angles (project).")
-@click.option("-o", "--output", type=click.Path(path_type=Path), help="Profile JSON (default: stdout).")
+@click.option("-o", "--out", "--output", "output", type=click.Path(path_type=Path),
+              help="Profile JSON (default: stdout).")
 @click.option("--plot", type=click.Path(path_type=Path),
               help="Also draw the profile to this file (.png, .jpg, .pdf or .svg).")
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")

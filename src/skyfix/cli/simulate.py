@@ -39,7 +39,7 @@ CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [
 @click.option("--planet", default=None,
               help="earth, mars, moon or a radius [m]; default: the body of the DEM's CRS (an Earth CRS may stand in for any body).")
 @click.option("--crs", default=None, help="Target CRS when the DEM must be reprojected.")
-@click.option("--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
 @click.option("--overwrite", is_flag=True,
               help="Replace a non-empty --out, whole, once the new one is complete.")
 def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, camera, pano_size, frames,
@@ -94,7 +94,7 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
 @click.option("--world-dem", type=click.Path(dir_okay=False), default=None,
               help="Render from this second DEM of the same place instead of DEM (cases are still "
                    "drawn on DEM, the map).")
-@click.option("--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False), required=True, help="Output folder.")
 @click.option("--overwrite", is_flag=True,
               help="Replace a non-empty --out, whole, once the new one is complete.")
 def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, camera_height_m, tilt_deg,

@@ -30,6 +30,13 @@ class PoseConfig:
         whole-pipeline scenario-1 cases (59 correct, 6 wrong) either trigger catches all the
         wrong fixes; the rms one also fires on 3 correct ones (time only). 0 / inf = never
     retry_segments, retry_per_segment : how many parts, and candidates kept from each search
+    dem_sigma_m : [m] the DEM's height error (rms) the final position search allows for (None:
+        the DEM is taken as the world). Each bin's residual is then weighted by
+        ``noise^2 / (noise^2 + atan(dem_sigma_m / d)^2)``, d the distance of the terrain that makes
+        that bin's skyline (a near-field bin under a 2 m error is worth little, a ridge 5 km away
+        nearly all), and the camera's height above the true ground is fitted (a residual
+        ``dh / d``): the DEM's error under the rover moves every bin by that much
+        (:func:`skyfix.pose.scoring.robust_cost`)
     """
 
     match: MatchConfig = MatchConfig()
@@ -44,6 +51,7 @@ class PoseConfig:
     retry_rms_ratio: float = 3.0
     retry_segments: int = 4
     retry_per_segment: int = 2
+    dem_sigma_m: float | None = None
 
 
 #: Most grid points a search without a database renders: each costs ~3 ms and ~30 kB, so this

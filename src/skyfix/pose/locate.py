@@ -34,6 +34,7 @@ import numpy as np
 from ..errors import ParameterError, SkyfixError
 from ..match import match_database, prepare_query
 from ..north import meridian_convergence_deg, true_heading_deg
+from ..progress import stage
 from .confidence import (confidence_features, confidence_from_features, position_sigma,
                          residual_correlation_bins, structureless_cap)
 from .config import PoseConfig
@@ -166,7 +167,10 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     workers = config.match.workers
     mres = None
     if db is not None:
-        mres = match_database(db, q, config.match, prior_xy=prior_xy, prior_radius_m=prior_radius_m)
+        with stage("  database searched") as st:
+            mres = match_database(db, q, config.match, prior_xy=prior_xy,
+                                  prior_radius_m=prior_radius_m)
+            st.result = f"{len(mres.candidates)} candidates in distinct basins"
         cands = [(c.x, c.y, c.score, c.heading_deg) for c in mres.candidates]
         step0 = float(db.spacing_m) / 4.0
         crs_wkt = getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else "")
@@ -199,7 +203,9 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     if dem is not None:
         kw = dict(camera_height_m=camera_height_m, planet=planet, prior_pitch_deg=prior_pitch_deg,
                   prior_roll_deg=prior_roll_deg, noise=noise)
-        results = refine_candidates(dem, q, cands[: config.refine_candidates], step0, config, **kw)
+        with stage(f"  {min(len(cands), config.refine_candidates)} candidates refined on the DEM") as st:
+            results = refine_candidates(dem, q, cands[: config.refine_candidates], step0, config, **kw)
+            st.result = f"best clipped cost {results[0]['cost']:.4f} deg^2" if results else "none"
         rest = list(cands[config.refine_candidates:])
         # "Another basin" is another answer beyond the tolerance: refined candidates often
         # converge onto the best one, and comparing with a copy of itself said nothing.

@@ -13,7 +13,7 @@ from ..errors import ParameterError, SkyfixError
 from .attitude import fit_attitude
 from .config import MAX_PRIOR_GRID_POINTS
 from .forward import body_profile, harmonic_tilt, relevel, residual_profile
-from .scoring import robust_cost, score_points
+from .scoring import body_distances, robust_cost, score_points
 
 
 def prior_grid(dem, prior_xy, radius_m, step_m):
@@ -134,7 +134,8 @@ def refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, plan
 
 
 def polish_position(dem, q, x, y, att, *, camera_height_m, planet, render_bins, prior_pitch_deg,
-                     prior_roll_deg, noise, step_m=0.5, min_step_m=0.03, max_evals=120):
+                     prior_roll_deg, noise, step_m=0.5, min_step_m=0.03, max_evals=120,
+                     dem_sigma_m=None):
     """Compass search of the position [m] on the attitude-refitted cost (:func:`robust_cost`).
 
     The grid refinement (:func:`refine_grid`) ranks points by the shift search's score: whole-bin
@@ -144,6 +145,7 @@ def polish_position(dem, q, x, y, att, *, camera_height_m, planet, render_bins, 
     roll (Gauss-Newton from the current attitude, ~10 ms), so the cost is the model's own.
     The 8 neighbours at the current step (``step_m`` at first) are tried; the best improvement
     is taken and the step doubles (up to 8 ``step_m``), else it halves, down to ``min_step_m``.
+    ``dem_sigma_m`` [m]: weigh bins by the DEM's trust there (:func:`robust_cost`).
     Returns (x, y, attitude, cost, residual profile [deg]).
     """
     from ..horizon import render_horizons
@@ -155,12 +157,13 @@ def polish_position(dem, q, x, y, att, *, camera_height_m, planet, render_bins, 
         ok = inside_dem(dem, xs, ys, 0.0)
         out = [(np.inf, None, None)] * xs.size
         if ok.any():
-            w = render_horizons(dem, xs[ok], ys[ok], camera_height_m=camera_height_m, planet=planet,
-                                azimuth_bins=render_bins).elevation_deg
-            for i, wi in zip(np.flatnonzero(ok), w):
+            hb = render_horizons(dem, xs[ok], ys[ok], camera_height_m=camera_height_m,
+                                 planet=planet, azimuth_bins=render_bins)
+            for i, wi, di in zip(np.flatnonzero(ok), hb.elevation_deg, hb.skyline_distance_m):
                 a = fit_attitude(q, wi, a0.yaw_deg, a0.pitch_deg, a0.roll_deg, restarts_deg=(0.0,), **kw)
                 r = residual_profile(q, wi, a, **kw)
-                out[i] = (robust_cost(r, noise), a, r)
+                dist = body_distances(di, a.yaw_deg, q.size) if dem_sigma_m else None
+                out[i] = (robust_cost(r, noise, dist, dem_sigma_m), a, r)
         return out
 
     (cost, att, resid), = evaluate([x], [y], att)
@@ -200,7 +203,7 @@ def refine_candidates(dem, q, cands, step0, config, *, camera_height_m, planet, 
             x, y, att_p, cost_p, resid_p = polish_position(
                 dem, q, d["x"], d["y"], d["att"], camera_height_m=camera_height_m, planet=planet,
                 render_bins=config.render_bins, prior_pitch_deg=prior_pitch_deg,
-                prior_roll_deg=prior_roll_deg, noise=noise)
+                prior_roll_deg=prior_roll_deg, noise=noise, dem_sigma_m=config.dem_sigma_m)
             d.update(x=x, y=y, att=att_p, heading=att_p.yaw_deg, cost=cost_p, resid=resid_p)
     # Ranked by the clipped cost: plain rms let outlier bins pick the wrong basin.
     results.sort(key=lambda d: d["cost"])

@@ -131,11 +131,43 @@ def score_points(dem, xs, ys, q, *, camera_height_m, planet, n_bins, remove_tilt
     return sc, sh
 
 
-def robust_cost(resid, noise_deg):
+def robust_cost(resid, noise_deg, dist_m=None, dem_sigma_m=None):
     """Clipped mean squared residual [deg^2] of a :func:`residual_profile`, offset removed:
     each bin counts at most ``(max(3 noise, 0.5 deg))^2``, so a few gross bins (a near rock)
-    cannot out-vote the rest when candidates are ranked."""
-    r = resid[np.isfinite(resid)]
-    r = r - np.median(r)
+    cannot out-vote the rest when candidates are ranked.
+
+    With ``dist_m`` (per bin [m]: how far the terrain making the predicted skyline lies) and
+    ``dem_sigma_m`` [m] (the DEM's height error), bins are weighted by how much the DEM can be
+    trusted there, ``noise^2 / (noise^2 + atan(dem_sigma_m / d)^2)``, and the offset is fitted as
+    ``a + b / d``: a height error of the DEM under the camera raises every bin by ``atan(dh / d)``.
+    """
+    ok = np.isfinite(resid)
+    r = resid[ok]
     c = max(3.0 * noise_deg, 0.5)
-    return float(np.mean(np.minimum(r * r, c * c)))
+    if dist_m is None or dem_sigma_m is None:
+        r = r - np.median(r)
+        return float(np.mean(np.minimum(r * r, c * c)))
+    d = np.asarray(dist_m, float)[ok]
+    d = np.where(np.isfinite(d) & (d > 0), d, np.inf)
+    sig = np.degrees(np.arctan(dem_sigma_m / d))
+    w = noise_deg ** 2 / (noise_deg ** 2 + sig ** 2)
+    u = np.stack([np.ones_like(d), np.degrees(1.0 / d)], axis=1)  # dh [m] -> dh / d [deg]
+    r = r - np.median(r)
+    inl = (np.abs(r) < c).astype(float) * w
+    for _ in range(2):  # weighted least squares on the inliers, then re-centred
+        uw = u * inl[:, None]
+        coef, *_ = np.linalg.lstsq(uw.T @ u + 1e-9 * np.eye(2), uw.T @ r, rcond=None)
+        r = r - u @ coef
+        inl = (np.abs(r) < c).astype(float) * w
+    return float(np.sum(w * np.minimum(r * r, c * c)) / max(np.sum(w), 1e-12))
+
+
+def body_distances(world_dist_m, yaw_deg, n_bins):
+    """The skyline distances [m] of a world-frame profile (any bin count) at the body-frame bins
+    of a rover with yaw ``yaw_deg`` [deg] (``world[az] = body[az - yaw]``; tilt ignored: the
+    distances change slowly with azimuth)."""
+    w = np.asarray(world_dist_m, float)
+    m = w.size
+    az = (np.arange(n_bins) * 360.0 / n_bins + yaw_deg) % 360.0
+    grid = np.arange(m + 1) * 360.0 / m
+    return np.interp(az, grid, np.append(w, w[0]))
