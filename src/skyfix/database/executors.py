@@ -95,6 +95,26 @@ def make_executor(workers: int | None = None, scheduler: str | None = None):
     dlog = logging.getLogger("distributed")
     if not log.isEnabledFor(logging.INFO):  # the cluster's start/stop chatter only with -v
         dlog.setLevel(logging.ERROR)
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    # The worker processes start with Ctrl-C ignored (a child inherits SIG_IGN, and Python then
+    # installs no KeyboardInterrupt handler): an interrupt reaches this process alone, which
+    # closes the cluster, instead of every worker printing its traceback.
+    with _sigint_ignored():
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+    with cluster, Client(cluster) as client:
         yield client.get_executor(pure=False), n, True
+
+
+@contextmanager
+def _sigint_ignored():
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
