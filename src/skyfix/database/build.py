@@ -234,7 +234,10 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
     """
     from ..dem import load_dem
 
-    out = Path(out)
+    # Absolute paths: a task runs in a worker whose working folder may be another (an external
+    # scheduler's workers), where a relative --out named nothing.
+    out = Path(out).absolute()
+    dem_path = str(Path(dem_path).absolute())
     grid = Grid.from_bounds(bounds, spacing_m, block)
     planet_spec = planet
     if planet is not None:
@@ -270,7 +273,25 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
     # must not cost the database that --overwrite was about to replace.
     with (nullcontext((executor, 2, False)) if executor is not None
           else make_executor(workers, scheduler)) as (ex, slots, single):
+        if scheduler is not None:
+            _check_workers_see(ex, dem_path, out)
         return _build(out, action, dem_path, dem, grid, params, planet, ex, slots, single, progress)
+
+
+def _paths_seen(dem_path: str, out_parent: str) -> tuple[bool, bool]:
+    """(the DEM file exists, the output's folder exists) where this runs (a worker)."""
+    return os.path.isfile(dem_path), os.path.isdir(out_parent)
+
+
+def _check_workers_see(ex: Executor, dem_path: str, out: Path) -> None:
+    """Refuse, before any work, a cluster whose workers cannot see the DEM or the output's folder
+    at the paths this process uses (another machine, another mount)."""
+    dem_ok, out_ok = ex.submit(_paths_seen, dem_path, str(out.parent)).result(timeout=60)
+    if not (dem_ok and out_ok):
+        what = " and ".join(w for w, ok in ((f"the DEM {dem_path}", dem_ok),
+                                           (f"the output folder {out.parent}", out_ok)) if not ok)
+        raise ParameterError(f"the Dask workers cannot see {what}: put both on storage the "
+                             "workers share, at the same path, or build with --workers instead")
 
 
 def _build(out: Path, action: str, dem_path, dem, grid: Grid, params: dict, planet: Planet,
