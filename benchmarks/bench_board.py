@@ -1,0 +1,203 @@
+"""The board segment as a rover runs it: images to fix, one core, 256 MB for everything.
+
+For each case (simulated acquisitions inside the database's area: a full turn, a 10 deg tilted
+rover, a position where near terrain hides half the turn), runs ``skyfix locate ACQ --db DB --dem
+DEM`` and then ``skyfix heading`` (position 15 m off, prior 5 deg off) as whole processes, pinned
+to one core (``taskset``), once free and once inside a memory cgroup limited to ``--limit-mb``
+(no swap: cgroup v1 ``memsw`` or v2 ``swap.max``, where the machine allows it; otherwise it says
+the limit was not enforced). Prints per run: wall and CPU seconds, peak RSS and peak anonymous
+memory (sampled from /proc every 20 ms), killed or not, position and heading error, confidence;
+the limited/free time ratio; and the load average.
+
+    python benchmarks/bench_board.py --db DB --dem DEM [--cases 3] [--limit-mb 256] [--cpu 0]
+        [--work DIR]
+
+The requirement's database is the README's 7 x 7 km at 5 m over the Sierra DEM:
+``skyfix build-db ../shared/data/dem/sierra_nevada_30m.tif -o DB --bounds -2020450 238257
+-2013450 245257 --spacing-m 5``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _cgroup(limit_mb: int):
+    """(path of a fresh memory cgroup limited to ``limit_mb`` without swap, how) or (None, why)."""
+    v1 = Path("/sys/fs/cgroup/memory")
+    v2 = Path("/sys/fs/cgroup/unified") if Path("/sys/fs/cgroup/unified/cgroup.procs").exists() \
+        else Path("/sys/fs/cgroup")
+    name = f"skyfix_board_{os.getpid()}"
+    limit = str(limit_mb * 1024 * 1024)
+    try:
+        if (v1 / "memory.limit_in_bytes").exists():
+            g = v1 / name
+            g.mkdir(exist_ok=True)
+            (g / "memory.limit_in_bytes").write_text(limit)
+            sw = g / "memory.memsw.limit_in_bytes"
+            if sw.exists():
+                sw.write_text(limit)
+                return g, "cgroup v1 memory, no swap (memsw)"
+            (g / "memory.swappiness").write_text("0")
+            return g, "cgroup v1 memory, swappiness 0 (no memsw accounting)"
+        if (v2 / "cgroup.controllers").exists() and "memory" in (v2 / "cgroup.controllers").read_text():
+            g = v2 / name
+            g.mkdir(exist_ok=True)
+            (g / "memory.max").write_text(limit)
+            if (g / "memory.swap.max").exists():
+                (g / "memory.swap.max").write_text("0")
+            return g, "cgroup v2 memory.max, swap.max 0"
+    except OSError as e:
+        return None, f"not enforced: cannot create a memory cgroup ({e.strerror})"
+    return None, "not enforced: no memory cgroup controller on this machine"
+
+
+def _run(cmd, cgroup=None, cpu=0):
+    """Run ``cmd`` pinned to ``cpu`` (and inside ``cgroup``); sample its memory. Returns a dict."""
+    def enter():
+        if cgroup is not None:
+            (cgroup / "cgroup.procs").write_text(str(os.getpid()))
+        os.sched_setaffinity(0, {cpu})
+
+    t0 = time.perf_counter()
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=enter)
+    rss = anon = 0
+    status = Path(f"/proc/{p.pid}/status")
+    while p.poll() is None:
+        try:
+            for line in status.read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    rss = max(rss, int(line.split()[1]))
+                elif line.startswith("RssAnon:"):
+                    anon = max(anon, int(line.split()[1]))
+        except OSError:
+            pass
+        time.sleep(0.02)
+    out, err = p.communicate()
+    wall = time.perf_counter() - t0
+    return {"rc": p.returncode, "wall_s": wall, "peak_rss_mb": rss / 1024, "peak_anon_mb": anon / 1024,
+            "killed": p.returncode in (-9, 137), "stdout": out, "stderr": err}
+
+
+def _children_cpu():
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _cases(dem, db, n, work: Path, seed=0):
+    """Acquisitions inside the database's grid: full turns (one tilted 10 deg) and one where near
+    terrain hides half the turn. Returns [(name, folder, truth)]."""
+    from skyfix.formats import Truth
+    from skyfix.horizon import render_horizons
+    from skyfix.simulate import simulate_acquisition
+
+    rng = np.random.default_rng(seed)
+    xs, ys = np.asarray(db.x_coords), np.asarray(db.y_coords)
+    m = 4 * db.spacing_m
+    lo_x, hi_x, lo_y, hi_y = xs.min() + m, xs.max() - m, ys.min() + m, ys.max() - m
+    pool = rng.uniform([lo_x, lo_y], [hi_x, hi_y], (400, 2))
+    hb = render_horizons(dem, pool[:, 0], pool[:, 1], azimuth_bins=72)
+    near = np.nanmean(hb.skyline_distance_m < 60.0, axis=1)
+    hidden = pool[int(np.argmax(near))]
+    plans = [("full turn", pool[0], 0.0), ("tilted 10 deg", pool[1], 10.0),
+             (f"near terrain hides {100 * near.max():.0f} %", hidden, 0.0)]
+    for k in range(3, n):
+        plans.append((f"full turn {k}", pool[k], 0.0))
+    out = []
+    for name, (x, y), pitch in plans[:max(n, 3)]:
+        truth = Truth(float(x), float(y), float(rng.uniform(0, 360)), pitch, 0.0)
+        folder = work / name.replace(" ", "_").replace("%", "pct")
+        if not (folder / "acquisition.json").exists():
+            simulate_acquisition(dem, truth, folder, camera="navcam", tilt_deg=15.0, overwrite=True,
+                                 seed=int(rng.integers(1 << 30)), attitude_prior=(0.0, 0.0))
+        out.append((name, folder, truth))
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--db", required=True)
+    ap.add_argument("--dem", required=True)
+    ap.add_argument("--cases", type=int, default=3)
+    ap.add_argument("--limit-mb", type=int, default=256)
+    ap.add_argument("--cpu", type=int, default=0)
+    ap.add_argument("--work", default="/tmp/skyfix_bench_board")
+    args = ap.parse_args(argv)
+    from skyfix.database import open_database
+    from skyfix.dem import load_dem
+    from skyfix.north import meridian_convergence_deg, true_heading_deg
+
+    dem, db = load_dem(args.dem), open_database(args.db)
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    cases = _cases(dem, db, args.cases, work)
+    cg, how = _cgroup(args.limit_mb)
+    print(f"memory limit {args.limit_mb} MB: {how}; pinned to CPU {args.cpu}; load average "
+          f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}", flush=True)
+    skyfix = [sys.executable, "-m", "skyfix.cli.main", "-q"]
+    print(f"{'case':30s} {'command':8s} {'limit':6s} {'wall s':>7s} {'cpu s':>6s} {'RSS MB':>7s} "
+          f"{'anon MB':>7s} {'killed':>6s} {'pos m':>7s} {'head deg':>8s} {'conf':>5s}")
+    ratios = []
+    try:
+        for name, folder, truth in cases:
+            conv = meridian_convergence_deg(dem.crs_wkt, truth.x, truth.y)
+            true_h = true_heading_deg(truth.yaw_deg, conv)
+            off = 15.0
+            hx, hy = truth.x + off * math.sin(1.0), truth.y + off * math.cos(1.0)
+            cmds = {
+                "locate": [*skyfix, "locate", str(folder), "--db", args.db, "--dem", args.dem, "-o",
+                           str(work / "fix.json"), "--overwrite"],
+                "heading": [*skyfix, "heading", str(folder), "--dem", args.dem, "--x", f"{hx:.2f}",
+                            "--y", f"{hy:.2f}", "--heading-prior-deg", f"{(true_h + 5) % 360:.2f}",
+                            "-o", str(work / "heading.json"), "--overwrite"],
+            }
+            for cname, cmd in cmds.items():
+                walls = {}
+                for lim in ("free", "limit"):
+                    if lim == "limit" and cg is None:
+                        continue
+                    c0 = _children_cpu()
+                    r = _run(cmd, cg if lim == "limit" else None, args.cpu)
+                    cpu = _children_cpu() - c0
+                    walls[lim] = r["wall_s"]
+                    pos = head = conf = float("nan")
+                    if r["rc"] == 0:
+                        res = json.loads((work / ("fix.json" if cname == "locate" else "heading.json")).read_text())
+                        pos = math.hypot(res["x"] - truth.x, res["y"] - truth.y) if cname == "locate" else float("nan")
+                        head = abs((res["grid_heading_deg"] - truth.yaw_deg + 180) % 360 - 180)
+                        conf = res["confidence"]
+                    elif not r["killed"]:
+                        print(f"   {cname} failed: {r['stderr'].strip()[-300:]}")
+                    print(f"{name[:30]:30s} {cname:8s} {lim:6s} {r['wall_s']:7.1f} {cpu:6.1f} "
+                          f"{r['peak_rss_mb']:7.0f} {r['peak_anon_mb']:7.0f} {str(r['killed']):>6s} "
+                          f"{pos:7.2f} {head:8.3f} {conf:5.2f}", flush=True)
+                if "limit" in walls:
+                    ratios.append(walls["limit"] / walls["free"])
+    finally:
+        if cg is not None:
+            try:
+                cg.rmdir()
+            except OSError:
+                pass
+    if ratios:
+        print(f"limited / free wall time: median {np.median(ratios):.2f}, worst {max(ratios):.2f} "
+              f"(target <= 1.25)")
+    print(f"load average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    shutil.rmtree(work / "tmp", ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
