@@ -66,19 +66,20 @@ def azimuth_centres(bins: int) -> np.ndarray:
     return np.arange(bins) * (360.0 / bins)
 
 
-def _check(dem: Dem, x, y, camera_height_m, azimuth_bins, max_distance_m):
+def _check(dem: Dem, x, y, camera_height_m, azimuth_bins, max_distance_m, heights=True):
     if not np.isfinite(camera_height_m) or camera_height_m < 0:
         raise ParameterError(f"camera height must be >= 0 m, got {camera_height_m}")
     if int(azimuth_bins) != azimuth_bins or azimuth_bins <= 0:
         raise ParameterError(f"azimuth bins must be a positive whole number, got {azimuth_bins}")
     if max_distance_m is not None and not max_distance_m > 0:
         raise ParameterError(f"maximum distance must be > 0 m, got {max_distance_m}")
-    dem.require_inside(x, y)
+    if heights:  # (a stack member is rendered from the stack's ground, which was checked)
+        dem.require_inside(x, y)
 
 
 def render_horizons(dem: Dem, x, y, *, camera_height_m: float = 1.5, planet=None,
                     azimuth_bins: int = 360, max_distance_m: float | None = None,
-                    skip_tol_deg: float = 0.001) -> HorizonBatch:
+                    skip_tol_deg: float = 0.001, camera_z_m=None) -> HorizonBatch:
     """Skylines at many points (parallel over points with numba's threads).
 
     x, y : [m] positions in the DEM's CRS (scalars or 1-D arrays)
@@ -88,12 +89,21 @@ def render_horizons(dem: Dem, x, y, *, camera_height_m: float = 1.5, planet=None
     azimuth_bins : number of bins over 360 deg
     max_distance_m : [m] ray length limit (default: to the DEM edge)
     skip_tol_deg : [deg] a block is skipped when it could raise the skyline by less than this
+    camera_z_m : [m] absolute camera heights per point instead of ``camera_height_m`` above this
+        DEM (a DEM stack renders each member from the finest member's ground)
+
+    ``dem`` may be a :class:`skyfix.stack.DemStack`: every member is rendered and the highest
+    terrain wins each bin (finer members mask what they cover in the coarser ones).
     """
+    if hasattr(dem, "members"):
+        return dem.render(x, y, camera_height_m=camera_height_m, planet=planet,
+                          azimuth_bins=azimuth_bins, max_distance_m=max_distance_m,
+                          skip_tol_deg=skip_tol_deg)
     x = np.atleast_1d(np.asarray(x, np.float64)).ravel()
     y = np.atleast_1d(np.asarray(y, np.float64)).ravel()
     if x.shape != y.shape:
         raise ParameterError("x and y must have the same length")
-    _check(dem, x, y, camera_height_m, azimuth_bins, max_distance_m)
+    _check(dem, x, y, camera_height_m, azimuth_bins, max_distance_m, heights=camera_z_m is None)
     planet = resolve_planet(planet, getattr(dem, "body", None))
     bins = int(azimuth_bins)
     data, offs, rows, cols = packed_pyramid(dem)
@@ -102,10 +112,12 @@ def render_horizons(dem: Dem, x, y, *, camera_height_m: float = 1.5, planet=None
     length = np.empty((x.size, bins), np.float32)
     dist = np.empty((x.size, bins), np.float32)
     ground = np.empty(x.size, np.float64)
+    cam_z = (np.full(x.size, np.nan) if camera_z_m is None else
+             np.broadcast_to(np.asarray(camera_z_m, np.float64), x.shape).copy())
     _render_batch(dem.z, data, offs, rows, cols, dem.x0, dem.y0, dem.dx, dem.dy, x, y,
                   float(camera_height_m), np.sin(az), np.cos(az),
                   float(max_distance_m or np.inf), planet.curvature_coeff,
-                  math.tan(math.radians(skip_tol_deg)), T_MIN_M, elev, length, ground, dist)
+                  math.tan(math.radians(skip_tol_deg)), T_MIN_M, elev, length, ground, dist, cam_z)
     return HorizonBatch(x, y, elev, length, ground, float(camera_height_m),
                         float(max_distance_m or np.inf), planet, dist)
 
@@ -250,7 +262,7 @@ def _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, t
 
 @numba.njit(cache=True, parallel=True, nogil=True)
 def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, caz, max_d,
-                  curv, tol, t_min, out_el, out_len, out_ground, out_dist):
+                  curv, tol, t_min, out_el, out_len, out_ground, out_dist, cam_z):
     ny, nx = z.shape
     n = xs.shape[0]
     nb = saz.shape[0]
@@ -259,7 +271,8 @@ def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz,
         v0 = (y0 - ys[k]) / dy
         zg = _bilinear(z, u0, v0)
         out_ground[k] = zg
-        zc = zg + h
+        # an absolute camera height where given (a DEM stack: the ground is the finest DEM's)
+        zc = cam_z[k] if math.isfinite(cam_z[k]) else zg + h
         t_seed = 0.0
         for b in range(nb):
             du = saz[b] / dx
@@ -282,7 +295,7 @@ def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz,
                 t_edge = min(t_edge, -v0 / dv)
             t_end = min(t_edge * (1 - 1e-9), max_d)
             out_len[k, b] = t_end
-            if not math.isfinite(zg):
+            if not math.isfinite(zc):
                 out_el[k, b] = np.nan
                 out_dist[k, b] = np.nan
                 continue

@@ -26,8 +26,11 @@ import click
               help="Delete an existing database and start afresh (only once every option is checked "
                    "and the workers are up).")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@click.option("--dem", "more_dems", multiple=True, type=click.Path(dir_okay=False),
+              help="Another DEM of the same place (repeatable): a stack, the finest DEM winning "
+                   "wherever it has heights (HiRISE inside CTX inside MOLA).")
 def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_distance_m, planet,
-             workers, scheduler, block_positions, overwrite, no_progress):
+             workers, scheduler, block_positions, overwrite, no_progress, more_dems):
     """Render the skyline at every grid position of BOUNDS from DEM into a zarr store.
 
     Killed at any point, the same command resumes where it stopped (it also redoes built blocks
@@ -38,7 +41,7 @@ def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_dis
     from ..database import build_database
 
     check_folder_output(out)
-    r = build_database(dem, out, bounds, spacing_m, camera_height_m=camera_height_m,
+    r = build_database([dem, *more_dems] if more_dems else dem, out, bounds, spacing_m, camera_height_m=camera_height_m,
                        azimuth_bins=azimuth_bins, max_distance_m=max_distance_m, planet=planet,
                        workers=workers, scheduler=scheduler, overwrite=overwrite,
                        progress=not no_progress, block=block_positions)

@@ -26,8 +26,11 @@ from .options import (azimuth_bins_option, camera_height_option, check_point_opt
 @click.option("--plot", type=click.Path(dir_okay=False), default=None,
               help="Draw the profile to this file (.png, .jpg, .pdf or .svg).")
 @overwrite_option
+@click.option("--dem", "more_dems", multiple=True, type=click.Path(dir_okay=False),
+              help="Another DEM of the same place (repeatable): a stack, the finest DEM winning "
+                   "wherever it has heights.")
 def horizon(dem_path, x, y, lon, lat, camera_height_m, planet, azimuth_bins, max_distance_m, crs,
-            as_json, plot, overwrite):
+            as_json, plot, overwrite, more_dems):
     """Render the skyline a DEM predicts from (X, Y).
 
     Elevation angles [deg] per azimuth bin (bin k centred on k*360/bins deg, clockwise from grid
@@ -36,11 +39,12 @@ def horizon(dem_path, x, y, lon, lat, camera_height_m, planet, azimuth_bins, max
     """
     from .._io import PLOT_FORMATS, check_outputs, to_json
     from ..dem import load_dem
+    from ..stack import load_dems
     from ..horizon import render_horizon
 
     check_point_options(x, y, lon, lat)
     check_outputs(overwrite, ("--plot", plot, PLOT_FORMATS))
-    dem = load_dem(dem_path, crs=crs)
+    dem = load_dems([dem_path, *more_dems], crs=crs) if more_dems else load_dem(dem_path, crs=crs)
     x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
     hb = render_horizon(dem, x, y, camera_height_m=camera_height_m, planet=planet,
                         azimuth_bins=azimuth_bins, max_distance_m=max_distance_m)

@@ -176,8 +176,9 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
 @click.option("--profile", "profile_path", type=click.Path(dir_okay=False),
               help="Body-frame profile JSON instead of an acquisition folder.")
 @click.option("--db", "db_path", type=click.Path(), help="Skyline database (zarr).")
-@click.option("--dem", "dem_path", type=click.Path(dir_okay=False),
-              help="DEM for sub-spacing refinement and attitude (needed without --db).")
+@click.option("--dem", "dem_paths", multiple=True, type=click.Path(dir_okay=False),
+              help="DEM for sub-spacing refinement and attitude (needed without --db); repeat it "
+                   "for a stack of DEMs of one place (the finest wins where it has heights).")
 @click.option("--prior-x", type=float, help="Prior position x [m] in the work CRS.")
 @click.option("--prior-y", type=float, help="Prior position y [m].")
 @click.option("--prior-lon", type=float, help="Prior longitude [deg] on the DEM's body (for --prior-x).")
@@ -195,11 +196,12 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
 @click.option("--force", is_flag=True,
               help="Use a --dem other than the one the database was built from (the fix says so).")
-def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_lon, prior_lat,
+def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lon, prior_lat,
            prior_radius_m, out, geojson, score_map, plot, preset, overwrite, force):
     """Find position, heading and attitude from an acquisition (or a profile)."""
     import math
 
+    dem_path = " + ".join(dem_paths) if dem_paths else None
     from .._io import GEOTIFF_SUFFIXES, PLOT_FORMATS, check_outputs
 
     # Everything that can be refused is refused before the search (minutes) and before any
@@ -230,9 +232,9 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_lon
 
             db = open_database(db_path)
         if dem_path is not None:
-            from ..dem import load_dem
+            from ..stack import load_dems
 
-            dem = load_dem(dem_path)
+            dem = load_dems(list(dem_paths))
         notes = _check_db_dem(db, dem, db_path, dem_path, force)
         if acq_dir is not None:
             from ..formats import load_acquisition
@@ -282,7 +284,8 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_lon
 @click.argument("acq_dir", required=False, type=click.Path(file_okay=False))
 @click.option("--profile", "profile_path", type=click.Path(dir_okay=False),
               help="Body-frame profile JSON instead of an acquisition folder.")
-@click.option("--dem", "dem_path", required=True, type=click.Path(dir_okay=False))
+@click.option("--dem", "dem_paths", required=True, multiple=True, type=click.Path(dir_okay=False),
+              help="DEM (repeat it for a stack of DEMs of one place).")
 @click.option("--x", "x", type=float, help="Rough position x [m] in the work CRS.")
 @click.option("--y", "y", type=float, help="Rough position y [m].")
 @click.option("--lon", type=float, help="Rough longitude [deg] on the DEM's body, instead of --x/--y.")
@@ -299,13 +302,13 @@ def locate(acq_dir, profile_path, db_path, dem_path, prior_x, prior_y, prior_lon
 @click.option("-o", "--out", "--output", "out", type=click.Path(dir_okay=False),
               help="Heading JSON (default stdout).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output.")
-def heading(acq_dir, profile_path, dem_path, x, y, lon, lat, heading_prior_deg, prior_north,
+def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg, prior_north,
             window_deg, camera_height_m, out, overwrite):
     """Find the heading only, from a rough position."""
     import math
 
     from .._io import check_outputs, to_json, write_json
-    from ..dem import load_dem
+    from ..stack import load_dems
     from ..north import grid_heading_from_true, meridian_convergence_deg
     from ..pose import at_window_edge, estimate_heading
 
@@ -319,7 +322,8 @@ def heading(acq_dir, profile_path, dem_path, x, y, lon, lat, heading_prior_deg, 
         raise ParameterError(f"--window-deg must be within (0, 180] deg, got {window_deg}")
     check_outputs(overwrite, ("--output", out, None))
     prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path)
-    dem = load_dem(dem_path)
+    dem_path = " + ".join(dem_paths)
+    dem = load_dems(list(dem_paths))
     x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
     h = camera_height_m if camera_height_m is not None else (cam_h if cam_h is not None else 1.5)
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)

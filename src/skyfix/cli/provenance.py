@@ -38,8 +38,9 @@ def provenance(*, acq_dir=None, profile_path=None, db=None, db_path=None, dem=No
                               "spacing_m": float(db.spacing_m),
                               "camera_height_m": float(db.camera_height_m)}
     if dem is not None:
-        inputs["dem"] = {"path": str(Path(dem_path).resolve()), "sha256": dem.checksum,
-                         "work_crs": dem.crs_name or dem.crs_wkt}
+        inputs["dem"] = {"path": str(dem_path), "sha256": dem.checksum,
+                         "work_crs": dem.crs_name or dem.crs_wkt,
+                         **({"sources": dem.sources} if hasattr(dem, "sources") else {})}
     frames = []
     if profile is not None:
         for r in profile.meta.get("frames", []) or []:

@@ -41,7 +41,7 @@ log = logging.getLogger(__package__)  # messages name the stage, as before the s
 class _BuildSpec:
     """Everything a block task needs (small: shipped to workers instead of the DEM)."""
 
-    dem_path: str
+    dem_path: str | tuple  # one DEM file, or a stack's files (skyfix.stack)
     dem_sha256: str
     out: str
     grid: Grid
@@ -56,14 +56,15 @@ class _BuildSpec:
 _DEM_CACHE: dict = {}
 
 
-def dem_for(path: str, sha256: str):
-    """The DEM at ``path``, loaded once per process and checked against its ``sha256``."""
-    from ..dem import load_dem
+def dem_for(path, sha256: str):
+    """The DEM at ``path`` (or the stack of a tuple of paths), loaded once per process and checked
+    against its ``sha256``."""
+    from ..stack import load_dems
 
     key = (path, sha256)
     dem = _DEM_CACHE.get(key)
     if dem is None:
-        dem = load_dem(path)
+        dem = load_dems(list(path) if isinstance(path, tuple) else path)
         if dem.checksum != sha256:
             raise DatabaseError(f"DEM {path} changed during the build (SHA-256 {dem.checksum[:12]}..., "
                                 f"expected {sha256[:12]}...): restart the build with the DEM you want")
@@ -218,7 +219,8 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
                    block: int = BLOCK) -> BuildResult:
     """Build (or resume) a skyline database over ``bounds``.
 
-    dem_path : DEM file (read with :func:`skyfix.dem.load_dem`, the DEM's own CRS if metric)
+    dem_path : DEM file (read with :func:`skyfix.dem.load_dem`, the DEM's own CRS if metric), or
+        several files of one place (:func:`skyfix.stack.load_dems`: the finest wins everywhere)
     out : the zarr store to write (a directory)
     bounds : (xmin, ymin, xmax, ymax) [m] of the position grid, in the DEM's CRS
     spacing_m : [m] grid spacing
@@ -232,12 +234,14 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
         and anything else is refused)
     block : [positions] block side (one task and one chunk per block)
     """
-    from ..dem import load_dem
+    from ..stack import load_dems
 
     # Absolute paths: a task runs in a worker whose working folder may be another (an external
     # scheduler's workers), where a relative --out named nothing.
     out = Path(out).absolute()
-    dem_path = str(Path(dem_path).absolute())
+    paths = [dem_path] if isinstance(dem_path, (str, os.PathLike)) else list(dem_path)
+    paths = [str(Path(p).absolute()) for p in paths]
+    dem_path = paths[0] if len(paths) == 1 else tuple(paths)
     grid = Grid.from_bounds(bounds, spacing_m, block)
     planet_spec = planet
     if planet is not None:
@@ -255,7 +259,7 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
     if executor is None:
         check_executor_options(workers, scheduler)
 
-    dem = load_dem(dem_path)
+    dem = load_dems(list(paths))
     planet = resolve_planet(planet_spec, dem.body)  # the DEM's CRS says which body
     xs, ys = grid.x_coords, grid.y_coords
     # Every position must have a height: the corners catch a wrong area, the full grid a void.
@@ -278,9 +282,10 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
         return _build(out, action, dem_path, dem, grid, params, planet, ex, slots, single, progress)
 
 
-def _paths_seen(dem_path: str, out_parent: str) -> tuple[bool, bool]:
-    """(the DEM file exists, the output's folder exists) where this runs (a worker)."""
-    return os.path.isfile(dem_path), os.path.isdir(out_parent)
+def _paths_seen(dem_path, out_parent: str) -> tuple[bool, bool]:
+    """(the DEM file(s) exist, the output's folder exists) where this runs (a worker)."""
+    paths = dem_path if isinstance(dem_path, tuple) else (dem_path,)
+    return all(os.path.isfile(p) for p in paths), os.path.isdir(out_parent)
 
 
 def _check_workers_see(ex: Executor, dem_path: str, out: Path) -> None:
@@ -296,6 +301,7 @@ def _check_workers_see(ex: Executor, dem_path: str, out: Path) -> None:
 
 def _build(out: Path, action: str, dem_path, dem, grid: Grid, params: dict, planet: Planet,
            ex: Executor, slots: int, single: bool, progress: bool) -> BuildResult:
+    paths = list(dem_path) if isinstance(dem_path, tuple) else [dem_path]
     """The part of :func:`build_database` that writes: every option checked, the executor running."""
     resumed = _apply_plan(out, action)
     azimuth_bins = params["azimuth_bins"]
@@ -309,13 +315,15 @@ def _build(out: Path, action: str, dem_path, dem, grid: Grid, params: dict, plan
                           "max_quantisation_error_deg": SCALE_DEG / 2,
                           "meaning": "elevation angle [deg] = raw * scale_deg; missing = no terrain "
                                      "seen along that ray"},
-            "dem": {"sha256": dem.checksum, "source": str(Path(dem_path).resolve()),
-                    "shape": list(dem.shape), "cell_m": [dem.dx, dem.dy], "bounds": list(dem.bounds)},
+            "dem": {"sha256": dem.checksum,
+                    "source": " + ".join(paths),
+                    "shape": list(dem.shape), "cell_m": [dem.dx, dem.dy], "bounds": list(dem.bounds),
+                    **({"sources": dem.sources} if hasattr(dem, "sources") else {})},
             "build": params,
         }
         _create_store(out, grid, azimuth_bins, attrs)
 
-    spec = _BuildSpec(str(Path(dem_path).resolve()), dem.checksum, str(out), grid,
+    spec = _BuildSpec(dem_path, dem.checksum, str(out), grid,
                       params["camera_height_m"], azimuth_bins, params["max_distance_m"], planet,
                       single_thread=single)
     _DEM_CACHE.clear()

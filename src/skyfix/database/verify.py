@@ -94,15 +94,19 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
         rep.samples_skipped = "no intact block to sample from"
         return rep
     if dem is None:
-        src = db.attrs["dem"].get("source", "")
-        if not src or not Path(src).is_file():
-            rep.samples_skipped = (f"the DEM recorded at build time, {src or '(none)'}, is not there: "
-                                   "pass --dem DEM to re-render samples (or --samples 0 to check the "
-                                   "checksums only)")
+        rec = db.attrs["dem"]
+        srcs = [s["path"] for s in rec.get("sources", [])] or [rec.get("source", "")]
+        missing = [s for s in srcs if not s or not Path(s).is_file()]
+        if missing:
+            rep.samples_skipped = (f"the DEM recorded at build time, {missing[0] or '(none)'}, is not "
+                                   "there: pass --dem DEM to re-render samples (or --samples 0 to "
+                                   "check the checksums only)")
             return rep
-        dem = src
-    if not isinstance(dem, Dem):
-        dem = load_dem(dem)
+        dem = srcs if len(srcs) > 1 else srcs[0]
+    if not (isinstance(dem, Dem) or hasattr(dem, "members")):
+        from ..stack import load_dems
+
+        dem = load_dems(dem)
     if dem.checksum != db.dem_sha256:
         rep.sample_failures.append(f"DEM checksum {dem.checksum[:12]}... differs from the build's "
                                    f"{db.dem_sha256[:12]}...: not the DEM this database was built from")

@@ -1,0 +1,209 @@
+"""Several DEMs of one place (``conventions.md``: at every point the finest DEM that covers it is
+the terrain): a HiRISE-like 1 m model inside a CTX-like 20 m one inside a MOLA-like global one.
+
+:func:`load_dems` reads them into the finest's work CRS (each coarser one reprojected there at its
+own resolution) and masks in every coarser member what a finer one covers, so a ridge is taken
+from the finest DEM that holds it and a ridge beyond the fine DEM's edge still comes from a
+coarse one. A skyline is rendered from every member with the camera on the finest ground, each
+member through its own max pyramid, and the highest terrain wins each bin
+(:meth:`DemStack.render`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+from .dem import Dem, load_dem
+from .errors import DemError
+
+
+class DemStack:
+    """DEMs of one place in one work CRS, finest first. Offers the read API of
+    :class:`skyfix.dem.Dem` that the pipeline uses (heights, bounds, CRS, body, checksum) on the
+    finest covering member.
+
+    A camera stands on the finest member L that holds its position; its skyline is that member's
+    terrain plus every coarser member with what members L.. already cover masked out (a ray
+    leaving the fine DEM goes on over the coarse one). Members finer than L do not hold the camera
+    and their ground is seen through the coarse approximation."""
+
+    def __init__(self, members: list[Dem]):
+        if len(members) < 2:
+            raise DemError("a DEM stack needs at least two DEMs")
+        self.members = members
+        self._layers: dict[int, list[Dem]] = {}
+        first = members[0]
+        self.crs_wkt, self.crs_name, self.body = first.crs_wkt, first.crs_name, first.body
+        self.dx, self.dy = first.dx, first.dy
+        self.scale_error = first.scale_error
+        self.sources = [{"path": m.source, "sha256": m.checksum, "cell_m": m.cell_m} for m in members]
+        self.source = " + ".join(m.source for m in members)
+        self.checksum = hashlib.sha256("+".join(m.checksum for m in members).encode()).hexdigest()
+        self.voids = first.voids
+
+    # --- the Dem read API ------------------------------------------------------------------------
+    @property
+    def cell_m(self) -> float:
+        return self.members[0].cell_m
+
+    @property
+    def shape(self):
+        return self.members[0].shape
+
+    @property
+    def z(self):
+        return self.members[0].z
+
+    @property
+    def bounds(self):
+        """The union of the members' bounds [m] (xmin, ymin, xmax, ymax)."""
+        b = np.array([m.bounds for m in self.members])
+        return (float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()), float(b[:, 3].max()))
+
+    def height_at(self, x, y):
+        """Height [m] of the finest member with one at (x, y) [m] (NaN where none)."""
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        out = np.full(np.broadcast(x, y).shape, np.nan)
+        for m in self.members:
+            need = ~np.isfinite(out)
+            if not need.any():
+                break
+            inside = np.asarray(m.contains(x, y), bool) & need
+            if inside.any():
+                h = np.asarray(m.height_at(np.where(inside, x, m.x0), np.where(inside, y, m.y0)))
+                out = np.where(inside & np.isfinite(h), h, out)
+        return out if out.ndim else float(out)
+
+    def contains(self, x, y, margin_m: float = 0.0):
+        c = np.zeros(np.broadcast(np.asarray(x), np.asarray(y)).shape, bool)
+        for m in self.members:
+            c |= np.asarray(m.contains(x, y, margin_m), bool)
+        return c
+
+    def require_inside(self, x, y, what: str = "point") -> None:
+        h = np.atleast_1d(self.height_at(x, y))
+        if not np.all(np.isfinite(h)):
+            k = int(np.flatnonzero(~np.isfinite(h))[0])
+            xs, ys = np.atleast_1d(x), np.atleast_1d(y)
+            b = self.bounds
+            from .errors import OutsideDemError
+
+            raise OutsideDemError(
+                f"{what} ({xs[k]:.1f}, {ys[k]:.1f}) has no height in any DEM of the stack "
+                f"(x {b[0]:.1f}..{b[2]:.1f}, y {b[1]:.1f}..{b[3]:.1f} in {self.crs_name})")
+
+    def level_of(self, x, y):
+        """Index of the finest member with a height at each (x, y) [m] (-1 where none)."""
+        x, y = np.atleast_1d(np.asarray(x, float)), np.atleast_1d(np.asarray(y, float))
+        lev = np.full(x.shape, -1)
+        for i, m in enumerate(self.members):
+            need = lev < 0
+            if not need.any():
+                break
+            inside = np.asarray(m.contains(x, y), bool) & need
+            if inside.any():
+                h = np.asarray(m.height_at(np.where(inside, x, m.x0), np.where(inside, y, m.y0)))
+                lev = np.where(inside & np.isfinite(h), i, lev)
+        return lev
+
+    def layers(self, level: int) -> list[Dem]:
+        """What a camera on member ``level`` sees: that member, then each coarser one masked where
+        members ``level``.. already hold heights."""
+        if level not in self._layers:
+            out = [self.members[level]]
+            for k in range(level + 1, len(self.members)):
+                out.append(_mask_covered(self.members[k], self.members[level:k]))
+            self._layers[level] = out
+        return self._layers[level]
+
+    # --- rendering -------------------------------------------------------------------------------
+    def render(self, x, y, *, camera_height_m=1.5, planet=None, azimuth_bins=360,
+               max_distance_m=None, skip_tol_deg=0.001):
+        """:func:`skyfix.horizon.render_horizons` over the stack: for the points on each member,
+        its :meth:`layers` rendered from the camera on that member's ground, the highest
+        elevation per bin winning (with its terrain's distance)."""
+        from .horizon import HorizonBatch, render_horizons
+
+        x = np.atleast_1d(np.asarray(x, np.float64)).ravel()
+        y = np.atleast_1d(np.asarray(y, np.float64)).ravel()
+        self.require_inside(x, y)
+        ground = np.atleast_1d(self.height_at(x, y)).astype(np.float64)
+        bins = int(azimuth_bins)
+        el = np.full((x.size, bins), np.nan, np.float32)
+        dist = np.full((x.size, bins), np.nan, np.float32)
+        length = np.zeros((x.size, bins), np.float32)
+        lev = self.level_of(x, y)
+        pl = None
+        for level in np.unique(lev):
+            sel = np.flatnonzero(lev == level)
+            zc = ground[sel] + float(camera_height_m)
+            for m in self.layers(int(level)):
+                inside = np.asarray(m.contains(x[sel], y[sel]), bool)
+                hb = render_horizons(m, np.where(inside, x[sel], m.x0), np.where(inside, y[sel], m.y0),
+                                     camera_height_m=camera_height_m, planet=planet,
+                                     azimuth_bins=bins, max_distance_m=max_distance_m,
+                                     skip_tol_deg=skip_tol_deg, camera_z_m=zc)
+                pl = hb.planet
+                e = np.where(inside[:, None], hb.elevation_deg, np.nan)
+                cur = el[sel]
+                higher = np.isfinite(e) & ~(e <= np.nan_to_num(cur, nan=-np.inf))
+                el[sel] = np.where(higher, e, cur)
+                dist[sel] = np.where(higher, hb.skyline_distance_m, dist[sel])
+                length[sel] = np.maximum(length[sel], np.where(inside[:, None], hb.ray_length_m, 0))
+        return HorizonBatch(x, y, el, length, ground, float(camera_height_m),
+                            float(max_distance_m or np.inf), pl, dist)
+
+
+def _mask_covered(coarse: Dem, finer: list[Dem]) -> Dem:
+    """``coarse`` with NaN at every node whose whole neighbourhood (the node and its 8
+    neighbours) a finer member holds: every coarse cell that reaches beyond the finer members
+    keeps its four corners, so no ring of terrain is lost at their edge (within that overlap the
+    higher of the two surfaces wins, a fraction of a coarse cell from the fine DEM's edge)."""
+    from scipy import ndimage
+
+    ny, nx = coarse.z.shape
+    xs = coarse.x0 + np.arange(nx) * coarse.dx
+    ys = coarse.y0 - np.arange(ny) * coarse.dy
+    gx, gy = np.meshgrid(xs, ys)
+    z = coarse.z.copy()
+    for f in finer:
+        inside = np.asarray(f.contains(gx, gy), bool)
+        h = np.full(z.shape, np.nan)
+        if inside.any():
+            h[inside] = f.height_at(gx[inside], gy[inside])
+        covered = ndimage.binary_erosion(np.isfinite(h), np.ones((3, 3), bool), border_value=0)
+        z[covered] = np.nan
+    return Dem(z, coarse.x0, coarse.y0, coarse.dx, coarse.dy, coarse.crs_wkt, coarse.crs_name,
+               source=coarse.source, checksum=coarse.checksum, voids=coarse.voids, body=coarse.body,
+               scale_error=coarse.scale_error)
+
+
+def load_dems(paths, *, crs: str | None = None):
+    """One DEM (a :class:`Dem`) or several (a :class:`DemStack`, finest first, in the finest's
+    work CRS; each coarser one reprojected there at its own cell size). DEMs of two bodies, or
+    that do not overlap, are refused."""
+    paths = [paths] if isinstance(paths, (str, bytes)) or not hasattr(paths, "__iter__") else list(paths)
+    if not paths:
+        raise DemError("no DEM given")
+    if len(paths) == 1:
+        return load_dem(paths[0], crs=crs)
+    first = [load_dem(p, crs=crs) for p in paths]
+    bodies = {d.body.name if d.body is not None else "unknown" for d in first}
+    if len(bodies) > 1:
+        raise DemError(f"the DEMs are on different bodies ({', '.join(sorted(bodies))}): a stack "
+                       "describes one place")
+    order = sorted(range(len(first)), key=lambda i: first[i].cell_m)
+    finest = first[order[0]]
+    members = [finest]
+    for i in order[1:]:
+        d = first[i]
+        if d.crs_wkt != finest.crs_wkt:  # into the finest's work CRS, at its own resolution
+            d = load_dem(paths[i], crs=finest.crs_wkt, resolution_m=d.cell_m)
+        b, f = d.bounds, finest.bounds
+        if b[0] > f[2] or b[2] < f[0] or b[1] > f[3] or b[3] < f[1]:
+            raise DemError(f"{paths[i]} does not overlap {paths[order[0]]}: a stack describes one "
+                           "place (check their CRSs and extents with skyfix info)")
+        members.append(d)
+    return DemStack(members)

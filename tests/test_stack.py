@@ -1,0 +1,143 @@
+"""DEM stacks: a fine DEM inside a coarse one is one terrain, the finest at every point, and a
+ridge only the coarse DEM holds is still in the skyline."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skyfix.dem import Dem, fractal_dem, write_dem
+from skyfix.errors import DemError
+from skyfix.horizon import render_horizons
+from skyfix.stack import DemStack, load_dems
+
+X0, Y0 = 500_000.0, 4_210_000.0  # north-west corner of the coarse DEM (pixel centre)
+
+
+def _coarse():
+    d = fractal_dem(161, 100.0, relief_m=300.0, seed=11, x0=X0, y0=Y0)
+    z = d.z.copy()
+    # a ridge 5.5 km east of the centre, north-south, 900 m above its surroundings
+    xs = X0 + np.arange(161) * 100.0
+    z += (900.0 * np.exp(-((xs - (X0 + 8000 + 5500)) / 250.0) ** 2))[None, :].astype(np.float32)
+    return Dem(z, d.x0, d.y0, 100.0, 100.0, d.crs_wkt, d.crs_name, body=d.body)
+
+
+def _fine(coarse):
+    """2 x 2 km at 10 m in the middle: the coarse surface (bilinear) plus metre-scale detail."""
+    n = 201
+    fx0, fy0 = X0 + 7000.0, Y0 - 7000.0
+    xs = fx0 + np.arange(n) * 10.0
+    ys = fy0 - np.arange(n) * 10.0
+    gx, gy = np.meshgrid(xs, ys)
+    rng = np.random.default_rng(2)
+    from scipy import ndimage
+
+    detail = ndimage.gaussian_filter(rng.normal(0, 1, (n, n)), 3.0)
+    z = coarse.height_at(gx, gy) + 8.0 * detail / detail.std()
+    return Dem(z.astype(np.float32), fx0, fy0, 10.0, 10.0, coarse.crs_wkt, coarse.crs_name,
+               body=coarse.body)
+
+
+def _merged_by_hand(coarse, fine):
+    """One DEM at 10 m: the coarse surface sampled at 10 m everywhere, the fine DEM pasted in."""
+    n = 1601
+    xs = X0 + np.arange(n) * 10.0
+    ys = Y0 - np.arange(n) * 10.0
+    gx, gy = np.meshgrid(xs, ys)
+    z = coarse.height_at(gx, gy)
+    inside = np.asarray(fine.contains(gx, gy), bool)
+    z[inside] = fine.height_at(gx[inside], gy[inside])
+    return Dem(z.astype(np.float32), X0, Y0, 10.0, 10.0, coarse.crs_wkt, coarse.crs_name,
+               body=coarse.body)
+
+
+@pytest.fixture(scope="module")
+def stack_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("stack")
+    coarse = _coarse()
+    fine = _fine(coarse)
+    return write_dem(d / "fine.tif", fine), write_dem(d / "coarse.tif", coarse), coarse, fine
+
+
+def test_stack_horizon_matches_one_dem_merged_by_hand(stack_files):
+    fine_p, coarse_p, coarse, fine = stack_files
+    stack = load_dems([coarse_p, fine_p])  # any order: the finest comes first
+    assert isinstance(stack, DemStack) and stack.members[0].cell_m == 10.0
+    merged = _merged_by_hand(coarse, fine)
+    rng = np.random.default_rng(5)
+    xs = rng.uniform(X0 + 7300, X0 + 8700, 25)
+    ys = rng.uniform(Y0 - 8700, Y0 - 7300, 25)
+    a = render_horizons(stack, xs, ys, azimuth_bins=360).elevation_deg
+    b = render_horizons(merged, xs, ys, azimuth_bins=360).elevation_deg
+    d = np.abs(a - b)[np.isfinite(a) & np.isfinite(b)]
+    assert d.size > 8000 and np.percentile(d, 99) <= 0.01, np.percentile(d, [50, 99, 100])
+
+
+def test_a_ridge_only_the_coarse_dem_holds_is_in_the_skyline(stack_files):
+    fine_p, coarse_p, coarse, fine = stack_files
+    stack = load_dems([fine_p, coarse_p])
+    # from the fine DEM's summit (its own terrain below the camera), looking east
+    r, c = np.unravel_index(np.argmax(fine.z[40:-40, 40:-40]), fine.z[40:-40, 40:-40].shape)
+    x, y = fine.x0 + (c + 40) * 10.0, fine.y0 - (r + 40) * 10.0
+    hs = render_horizons(stack, [x], [y], azimuth_bins=360)
+    ha = render_horizons(load_dems([fine_p]), [x], [y], azimuth_bins=360)
+    east = slice(85, 96)  # azimuths 85-95 deg: towards the ridge ~5 km east
+    ridge_x = X0 + 13500.0
+    assert np.all(np.abs(hs.skyline_distance_m[0, east] - (ridge_x - x)) < 600)  # the ridge
+    assert np.all(ha.skyline_distance_m[0, east] < 1500)  # alone: the fine DEM's own terrain
+    assert np.nanmin(hs.elevation_deg[0, east]) > np.nanmax(ha.elevation_deg[0, east])
+
+
+def test_stacks_of_two_bodies_or_two_places_are_refused(tmp_path, stack_files):
+    fine_p, coarse_p, coarse, fine = stack_files
+    far = Dem(fine.z, fine.x0 + 500_000.0, fine.y0, 10.0, 10.0, fine.crs_wkt, fine.crs_name)
+    with pytest.raises(DemError, match="does not overlap"):
+        load_dems([fine_p, write_dem(tmp_path / "far.tif", far)])
+    import rasterio
+    from rasterio.transform import from_origin
+
+    mars = tmp_path / "mars.tif"
+    with rasterio.open(mars, "w", driver="GTiff", width=50, height=50, count=1, dtype="float32",
+                       crs="IAU_2015:49900", transform=from_origin(77.0, 18.5, 0.001, 0.001)) as dst:
+        dst.write(np.zeros((50, 50), np.float32), 1)
+    with pytest.raises(DemError, match="different bodies"):
+        load_dems([fine_p, mars])
+
+
+def test_build_and_locate_on_a_stack(tmp_path, stack_files):
+    """build-db and locate over a stack: the database records every source, the fix from an
+    exact skyline of the stack lands on the truth, and a DEM list other than the database's is
+    refused."""
+    import json
+
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+    from skyfix.database import open_database
+    from skyfix.formats import write_profile_json
+    from skyfix.pose import synthetic_profile
+
+    fine_p, coarse_p, coarse, fine = stack_files
+    db = tmp_path / "db.zarr"
+    bounds = [str(v) for v in (X0 + 7600, Y0 - 8400, X0 + 8400, Y0 - 7600)]
+    r = CliRunner().invoke(cli, ["build-db", str(fine_p), "--dem", str(coarse_p), "-o", str(db),
+                                 "--bounds", *bounds, "--spacing-m", "40", "--workers", "0",
+                                 "--no-progress"])
+    assert r.exit_code == 0, r.output
+    rec = open_database(db).attrs["dem"]
+    assert [s["cell_m"] for s in rec["sources"]] == [10.0, 100.0]
+    stack = load_dems([fine_p, coarse_p])
+    tx, ty, th = X0 + 8013.0, Y0 - 7987.0, 63.0
+    prof = synthetic_profile(stack, tx, ty, th, noise_deg=0.02, rng=3)
+    write_profile_json(tmp_path / "p.json", prof)
+    r = CliRunner().invoke(cli, ["locate", "--profile", str(tmp_path / "p.json"), "--db", str(db),
+                                 "--dem", str(fine_p), "--dem", str(coarse_p), "-o",
+                                 str(tmp_path / "fix.json")])
+    assert r.exit_code == 0, r.output
+    fix = json.loads((tmp_path / "fix.json").read_text())
+    assert np.hypot(fix["x"] - tx, fix["y"] - ty) < 1.0
+    assert abs((fix["grid_heading_deg"] - th + 180) % 360 - 180) < 0.05
+    only_fine = CliRunner().invoke(cli, ["locate", "--profile", str(tmp_path / "p.json"), "--db",
+                                         str(db), "--dem", str(fine_p)])
+    assert only_fine.exit_code == 2 and "is not the DEM the database" in only_fine.output
