@@ -134,7 +134,7 @@ class SkyNet:
         self.cal_x = np.asarray(cal.get("raw", []), float)
         self.cal_y = np.asarray(cal.get("p_within_3px", []), float)
 
-    def _run(self, x):
+    def _run(self, x, member=-1):
         c, h, w = x.shape
         hp, wp = -(-h // STRIDE) * STRIDE, -(-w // STRIDE) * STRIDE
         t = np.zeros((1, c, hp, wp), np.float32)
@@ -147,14 +147,19 @@ class SkyNet:
             t[0, 3, :, w:] = 0.0
         self.net.setInput(t)
         # an ensemble stacks its members' log-odds as channels: their mean is the answer
-        return self.net.forward()[0, :, :h, :w].mean(axis=0)
+        out = self.net.forward()[0, :, :h, :w]
+        if member >= 0:
+            if member >= out.shape[0]:
+                raise ParameterError(f"member {member}: this network has {out.shape[0]} member(s)")
+            return out[member]
+        return out.mean(axis=0)
 
-    def log_odds(self, x, flip=True):
+    def log_odds(self, x, flip=True, member=-1):
         """log p(sky) / p(terrain) [nats] per working pixel of a :func:`net_input` array, the mean
         of the network on the image and on its mirror image when ``flip``."""
-        lo = self._run(x)
+        lo = self._run(x, member)
         if flip:
-            lo = 0.5 * (lo + self._run(np.ascontiguousarray(x[:, :, ::-1]))[:, ::-1])
+            lo = 0.5 * (lo + self._run(np.ascontiguousarray(x[:, :, ::-1]), member)[:, ::-1])
         if not np.isfinite(lo).all():
             raise ParameterError("the sky network gave non-finite output: its model file is damaged")
         return lo.astype(np.float64)
@@ -187,7 +192,7 @@ def sky_net_log_odds(img, valid, opt: NetOptions, model=None):
     f = downscale_factor(H, W, opt.net_pixels)
     size = (max(1, W // f), max(1, H // f))
     x, v = net_input(img, valid, size)
-    return net.log_odds(x, flip=opt.flip), v, f, net
+    return net.log_odds(x, flip=opt.flip, member=opt.member), v, f, net
 
 
 def column_confidence(p, top, bottom, v, k):

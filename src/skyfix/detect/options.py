@@ -218,6 +218,8 @@ class NetOptions:
     conf_rows : working rows above and below the path whose probabilities make the confidence
     min_confidence : a column whose calibrated confidence is below this is reported unknown
     min_run, anchor_conf, anchor_gap, anchor_len : run hysteresis as in :class:`DpOptions`
+    member : -1 (default): the mean of every member of an ensemble network; k: member k alone
+        (each was trained with some images held out: see the model's ``held_out_by_member``)
     """
 
     net_pixels: int = 300_000
@@ -235,6 +237,7 @@ class NetOptions:
     anchor_conf: float = 0.0
     anchor_gap: float = 0.02
     anchor_len: float = 0.15
+    member: int = -1
     no_data_black: bool = True
 
 
@@ -271,7 +274,7 @@ def check_options(opt) -> None:
         elif f.type in ("int", int):
             if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
                 raise ParameterError(f"option {name}={v!r}: give a whole number")
-            low = 1 if name in _AT_LEAST_ONE else 0
+            low = 1 if name in _AT_LEAST_ONE else (-1 if name == "member" else 0)
             if v < low:
                 raise ParameterError(f"option {name}={v}: must be >= {low}")
         else:

@@ -10,11 +10,12 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..match import prepare_query, score_profiles
-from .attitude import fit_attitude
-from .confidence import confidence_features, confidence_from_features, structureless_cap
 from ..north import meridian_convergence_deg, true_heading_deg
+from .attitude import fit_attitude
+from .confidence import (confidence_features, confidence_from_features, residual_correlation_bins,
+                         structureless_cap)
 from .fix import HeadingFix, crs_and_lonlat
-from .forward import body_profile, harmonic_tilt
+from .forward import body_profile, harmonic_tilt, residual_profile
 from .scoring import profile_arrays
 
 
@@ -84,6 +85,10 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     grid = att.yaw_deg % 360.0
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     crs, lon, lat = crs_and_lonlat(dem.crs_wkt, x, y)
-    return HeadingFix(true_heading_deg(grid, conv), att.yaw_sigma_deg, att.pitch_deg, att.roll_deg,
+    # the fit's sigma counts every bin as independent; neighbouring residuals are not
+    corr = residual_correlation_bins(residual_profile(q, world, att, prior_pitch_deg=prior_pitch_deg,
+                                                      prior_roll_deg=prior_roll_deg))
+    hsig = att.yaw_sigma_deg * math.sqrt(max(1.0, corr))
+    return HeadingFix(true_heading_deg(grid, conv), hsig, att.pitch_deg, att.roll_deg,
                       conf, att.rms_deg ** 2, float(x), float(y), grid_heading_deg=grid,
                       meridian_convergence_deg=conv, crs=crs, lon=lon, lat=lat, features=feat)

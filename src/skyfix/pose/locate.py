@@ -92,14 +92,17 @@ def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_de
                 [c[2] for c in rest if far(c[0], c[1])] or [np.inf])
     att = best["att"]
     obs = np.isfinite(q)
-    psig = position_sigma(best["local"], best["score"], int(obs.sum()), noise,
-                           corr_bins=residual_correlation_bins(best["resid"]))
+    corr = residual_correlation_bins(best["resid"])
+    psig = position_sigma(best["local"], best["score"], int(obs.sum()), noise, corr_bins=corr)
     tilt = math.hypot(att.pitch_deg - prior_pitch_deg, att.roll_deg - prior_roll_deg)
     feat = confidence_features(best["cost"], other, att.robust_rms_deg, noise, relief,
                                float(obs.mean()), psig, tilt)
     conf = structureless_cap(confidence_from_features(feat, model, key), relief, noise)
     return dict(x=best["x"], y=best["y"], heading=att.yaw_deg, pitch=att.pitch_deg,
-                roll=att.roll_deg, cost=best["cost"], psig=psig, hsig=att.yaw_sigma_deg,
+                roll=att.roll_deg, cost=best["cost"], psig=psig,
+                # the fit's sigma counts every bin as independent; neighbouring residuals are
+                # not (the same correction as the position sigma's)
+                hsig=att.yaw_sigma_deg * math.sqrt(max(1.0, corr)),
                 feat=feat, conf=conf)
 
 
