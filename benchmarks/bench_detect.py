@@ -301,7 +301,9 @@ def main(argv=None):
             sims = list(sim_pairs(set_dir))
             if args.degrade:
                 sims = [(n, degrade(im, args.degrade), t) for n, im, t in sims]
-            run_set(sims, "dp", per_image=False, title=f"(simulated {set_dir.name})", **options)
+            for m in args.methods.split(","):
+                run_set(sims, m, per_image=False, title=f"(simulated {set_dir.name})",
+                        **(options if m == "dp" else {}))
     else:
         print("simulated sets: pass --sim DIR (DIR/REF, DIR/CLUT, ... written by "
               "skyfix.simulate.simulate_set)")
