@@ -398,3 +398,45 @@ def test_clipped_cost_counts_outliers_at_the_clip():
     cost = clipped_costs(p, q, np.array([17.0, 17.0, 17.0]), remove_tilt=True, clip_deg=0.5)
     assert cost[1] == pytest.approx(30 / 360 * 0.25, abs=1e-9)
     assert cost[0] > 5 * cost[1] and cost[2] > 5 * cost[1]
+
+
+@pytest.mark.parametrize("arc", [8, 12])
+def test_a_narrow_arc_gives_a_heading_rather_than_a_refusal(world, arc):
+    """A frame whose skyline spans 8-12 deg (a partial detection in one photo) used to be refused
+    ("observed bins too clustered to fit the tilt harmonic"): the tilt harmonic is dropped there
+    and the heading still comes out (map = world here, so within a few tenths of a degree)."""
+    from skyfix.match import tilt_determinable
+
+    dem, _ = world
+    prof = synthetic_profile(dem, 650.0, 950.0, 222.0, 0.0, 0.0, noise_deg=0.05, rng=7)
+    q = np.full(prof.elevation_deg.size, np.nan)
+    q[40:40 + arc] = prof.elevation_deg[40:40 + arc]
+    assert not tilt_determinable(np.isfinite(q))
+    hf = estimate_heading(Profile(q, np.where(np.isfinite(q), 0.05, np.nan), "body"),
+                          dem, 650.0, 950.0, 226.0, window_deg=10.0)
+    assert abs(_ang(hf.heading_deg - 222.0)) < 1.0
+
+
+def test_the_tilt_harmonic_needs_a_wide_arc():
+    """Closed form: over a full turn the Gram matrix of (1, cos, sin) is diag(n, n/2, n/2)
+    (condition 2); a 50 deg frame still determines a tilt, a few degrees do not."""
+    from skyfix.match import tilt_determinable
+
+    assert tilt_determinable(np.ones(360, bool))
+    for width, ok in ((50, True), (20, True), (5, False), (2, False)):
+        m = np.zeros(360, bool)
+        m[100:100 + width] = True
+        assert tilt_determinable(m) is ok, width
+
+
+def test_locate_takes_a_narrow_arc_on_the_attitude_prior(world):
+    """30 observed bins of a 1440-bin profile span 7.5 deg: enough bins for the search, too narrow
+    an arc for the tilt harmonic. locate searches without it (and says so) instead of refusing."""
+    dem, _ = world
+    full = synthetic_profile(dem, 700.0, 900.0, 40.0, 0.0, 0.0, noise_deg=0.02, rng=8, n_bins=1440)
+    q = np.full(1440, np.nan)
+    q[200:230] = full.elevation_deg[200:230]
+    fix = locate(Profile(q, np.where(np.isfinite(q), 0.02, np.nan), "body"), dem=dem,
+                 prior_xy=(700.0, 900.0), prior_radius_m=15.0, config=CFG)
+    assert any("too narrow an arc" in n for n in fix.notes)
+    assert np.isfinite(fix.x) and np.isfinite(fix.heading_deg)

@@ -44,6 +44,23 @@ def harmonic_basis(n: int, remove_tilt: bool) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
+#: largest condition number of the observed bins' Gram matrix of :func:`harmonic_basis` at which
+#: the tilt harmonic is still fitted: beyond it the bins span too narrow an arc to tell a tilt
+#: from a constant and a heading shift
+MAX_TILT_CONDITION = 1e6
+
+
+def tilt_determinable(observed) -> bool:
+    """Whether the observed bins (boolean mask over the profile's azimuth bins) span enough of the
+    circle to fit the tilt harmonic (small pitch/roll) beside the constant."""
+    m = np.asarray(observed, bool)
+    u = harmonic_basis(m.size, True)[m]
+    if m.sum() < u.shape[1] + 2:
+        return False
+    g = u.T @ u
+    return bool(np.isfinite(np.linalg.cond(g)) and np.linalg.cond(g) <= MAX_TILT_CONDITION)
+
+
 def prepare_query(elevation_deg, remove_tilt: bool = True, min_observed: int = 20) -> Query:
     """Kernels for :func:`score_profiles` from a body-frame profile [deg] (NaN = unobserved)."""
     import scipy.fft as sf
@@ -66,11 +83,13 @@ def prepare_query(elevation_deg, remove_tilt: bool = True, min_observed: int = 2
     try:
         g_inv = np.linalg.inv(g)
     except np.linalg.LinAlgError:
-        raise ParameterError("observed bins too few or too clustered to fit the tilt harmonic; "
-                             "match with remove_tilt=False") from None
-    if np.linalg.cond(g) > 1e6:
-        raise ParameterError("observed bins too clustered to fit the tilt harmonic; "
-                             "match with remove_tilt=False")
+        raise ParameterError("observed bins too few or too clustered to fit the tilt harmonic "
+                             "(check with tilt_determinable; match with remove_tilt=False, "
+                             "as locate and heading do for such views)") from None
+    if np.linalg.cond(g) > MAX_TILT_CONDITION:
+        raise ParameterError("observed bins too clustered to fit the tilt harmonic "
+                             "(check with tilt_determinable; match with remove_tilt=False, "
+                             "as locate and heading do for such views)")
     # Whiten the nuisance kernels with G^-1 = L L^T: the quadratic form becomes a sum of squares.
     chol = np.linalg.cholesky(g_inv)
     uw = u @ chol

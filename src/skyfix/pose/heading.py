@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from ..errors import ParameterError
-from ..match import prepare_query, score_profiles
+from ..match import prepare_query, score_profiles, tilt_determinable
 from ..north import meridian_convergence_deg, true_heading_deg
 from .attitude import fit_attitude
 from .confidence import (confidence_features, confidence_from_features, residual_correlation_bins,
@@ -54,7 +54,10 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     world = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
                             azimuth_bins=render_bins).elevation_deg[0]
     world_n = np.nan_to_num(body_profile(world, 0.0, n_bins=n))
-    query = prepare_query(q, True, min_observed=8)
+    # A frame spanning a narrow arc cannot tell a tilt from a constant and a shift: match without
+    # the tilt harmonic there (the Gauss-Newton fit below still refines pitch and roll).
+    tilt = tilt_determinable(np.isfinite(q))
+    query = prepare_query(q, tilt, min_observed=8)
     s = score_profiles(world_n[None].astype(np.float32), query, all_shifts=True)[0]
     shifts = np.arange(n) * 360.0 / n
     dist = np.abs((shifts - heading_prior_deg + 180.0) % 360.0 - 180.0)
@@ -62,7 +65,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     inwin = dist <= max(window_deg, float(dist.min()))
     k = int(np.flatnonzero(inwin)[np.argmin(s[inwin])])
     h0 = shifts[k]
-    p0, r0 = harmonic_tilt(q, body_profile(world, h0, n_bins=n))
+    p0, r0 = harmonic_tilt(q, body_profile(world, h0, n_bins=n)) if tilt else (0.0, 0.0)
     att = fit_attitude(q, world, h0, prior_pitch_deg + p0, prior_roll_deg + r0,
                        prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg,
                        yaw_window_deg=window_deg, yaw_center_deg=heading_prior_deg,

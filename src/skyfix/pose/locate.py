@@ -28,11 +28,12 @@ The forward model (world horizon -> body-frame profile for an attitude) is :func
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from ..errors import ParameterError, SkyfixError
-from ..match import match_database, prepare_query
+from ..match import match_database, prepare_query, tilt_determinable
 from ..north import meridian_convergence_deg, true_heading_deg
 from ..progress import stage
 from .confidence import (confidence_features, confidence_from_features, position_sigma,
@@ -168,6 +169,14 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         if isinstance(planet, dict):
             planet = planet.get("name") or planet.get("radius_m") or "earth"
     workers = config.match.workers
+    notes = list(notes)
+    if config.match.remove_tilt and not tilt_determinable(np.isfinite(q)):
+        # A single frame or a partial view spans too narrow an arc to tell a tilt from a
+        # constant and a heading shift: the search trusts the attitude prior instead (the
+        # refinement still fits pitch and roll); refusing such a view helped nobody.
+        config = replace(config, match=replace(config.match, remove_tilt=False))
+        notes.append("the observed skyline spans too narrow an arc to separate a tilt: the "
+                     "search took the attitude prior as the tilt")
     mres = None
     if db is not None:
         with stage("  database searched") as st:
@@ -243,7 +252,6 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         feat = confidence_features(best_s, other, rms, noise, relief, float(np.isfinite(q).mean()),
                                    psig, tilt)
         conf = structureless_cap(confidence_from_features(feat, model, "locate"), relief, noise)
-    notes = list(notes)
     degenerate = degenerate_search(db, dem, fx, fy, prior_xy, prior_radius_m,
                                    config.tolerance_m if db is not None else 1.0,
                                    config.grid_step_m)
