@@ -1,0 +1,63 @@
+"""Skyline measurements at a traverse's stops from their acquisition folders: the stop's profile is
+detected once and serves the heading search and the position fix alike.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import SkyfixError
+from .run import Measure, Measurement
+
+#: fewest observed azimuth bins a stop's profile must hold to be measured (a heading needs 8)
+MIN_BINS = 8
+
+
+def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) -> Measure:
+    """A :class:`Measure` that reads stop k's acquisition folder, detects its skyline and runs
+    :func:`skyfix.pose.estimate_heading` or :func:`skyfix.pose.locate` (with ``db`` when given,
+    else on ``dem`` in the prior disc)."""
+    from ..formats import load_acquisition
+    from ..horizon import render_horizons
+    from ..pose import PoseConfig, estimate_heading, locate
+    from ..profile import acquisition_profile
+
+    cfg = pose_config or PoseConfig()
+    cache = {}
+
+    def profile(k):
+        if k not in cache:
+            cache.clear()  # one stop's profile at a time
+            acq = load_acquisition(trav.folders[k])
+            prof = acquisition_profile(acq, detector=detector)
+            obs = int(np.isfinite(prof.elevation_deg).sum())
+            if obs < MIN_BINS:
+                raise SkyfixError(f"{obs} azimuth bins of skyline detected (at least {MIN_BINS} "
+                                  "are needed)")
+            cache[k] = (prof, acq)
+        return cache[k]
+
+    def heading(k, x, y, prior_deg, window_deg):
+        prof, acq = profile(k)
+        hf = estimate_heading(prof, dem, x, y, prior_deg, window_deg,
+                              camera_height_m=acq.camera_height_m, prior_pitch_deg=acq.prior_pitch_deg,
+                              prior_roll_deg=acq.prior_roll_deg)
+        hb = render_horizons(dem, [x], [y], camera_height_m=acq.camera_height_m, azimuth_bins=360)
+        dist = hb.skyline_distance_m
+        d = float(np.nanmedian(dist)) if dist is not None and np.isfinite(dist).any() else None
+        return Measurement(hf.grid_heading_deg, hf.heading_sigma_deg, hf.confidence,
+                           skyline_distance_m=d)
+
+    def fix(k, x, y, radius_m):
+        prof, acq = profile(k)
+        if db is None and x is None:
+            raise SkyfixError("no start and no database: the first fix needs --db or a start "
+                              "in traverse.json")
+        f = locate(prof, db=db, dem=dem, prior_xy=None if x is None else (x, y),
+                   prior_radius_m=radius_m, prior_pitch_deg=acq.prior_pitch_deg,
+                   prior_roll_deg=acq.prior_roll_deg, camera_height_m=acq.camera_height_m,
+                   config=cfg)
+        return Measurement(f.grid_heading_deg, f.heading_sigma_deg, f.confidence, f.x, f.y,
+                           f.position_sigma_m)
+
+    return Measure(heading, fix)

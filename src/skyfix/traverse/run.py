@@ -1,0 +1,281 @@
+"""The traverse loop: odometry between stops, a skyline heading at every stop, a skyline position
+fix at the end of each leg, gated, retried, and an operator request instead of a crash.
+
+Per stop (the rover's activity diagram in the source study):
+
+1. predict with the odometry from the previous stop;
+2. decide the update: a position fix (``locate`` in a disc of 3 sigma about the prediction) at the
+   end of a leg (``leg_length_m`` driven since the last accepted fix), when the position sigma has
+   grown past what the heading mode tolerates (``max_position_sigma_m``), or while an earlier
+   fix is still owed; else a heading (``heading`` at the predicted position in a window of
+   ``max(heading_window_deg, 3 sigma)`` about the predicted heading);
+3. measure; a measurement below ``min_confidence`` is retried once (a heading with the window
+   doubled; a fix with the disc doubled); an error (no skyline detected, too few bins) is a
+   failed detection;
+4. gate: the innovation's chi-square at 99.9 % against the filter's and the measurement's
+   covariance together; outside it, rejected (a confident-looking outlier);
+5. an ``operator_request`` when the skyline cannot be detected at the stop, or after
+   ``max_rejections`` stops in a row without an accepted update; the traverse goes on with
+   odometry.
+
+The measurement functions are parameters (:class:`Measure`), so the loop runs the same on real
+acquisitions and on scripted measurements (the tests).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..errors import SkyfixError
+from .ekf import PoseFilter, wrap_deg
+from .inputs import Traverse
+
+STOPS_FILE = "stops.jsonl"
+
+
+@dataclass(frozen=True)
+class TraverseConfig:
+    """min_confidence : an update below it is retried once, then not used
+    max_rejections : stops in a row without an accepted update before the operator is asked
+    heading_window_deg : [deg] the smallest half-window of a heading search
+    max_position_sigma_m : [m] a position fix is due once the 1-sigma position exceeds it (the
+        heading at a wrong position is wrong by about sigma / skyline distance)
+    min_fix_radius_m, max_fix_radius_m : [m] bounds of the position fix's search disc (3 sigma)
+    position_sigma_floor_m, heading_sigma_floor_deg : [m], [deg] the least sigma a skyline
+        measurement is given (skyfix's sigma is the fit's; the map's own errors come on top)
+    leg_length_m : [m] overrides the traverse's own
+    """
+
+    min_confidence: float = 0.5
+    max_rejections: int = 3
+    heading_window_deg: float = 10.0
+    max_position_sigma_m: float = 15.0
+    min_fix_radius_m: float = 15.0
+    max_fix_radius_m: float = 150.0
+    position_sigma_floor_m: float = 0.3
+    heading_sigma_floor_deg: float = 0.05
+    leg_length_m: float | None = None
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One skyline measurement, grid north: x, y [m] (None for a heading), heading [deg], 1-sigmas,
+    calibrated confidence, and the skyline's median distance [m] (for the heading's sensitivity to
+    the position; None when unknown)."""
+
+    heading_deg: float
+    heading_sigma_deg: float
+    confidence: float
+    x: float | None = None
+    y: float | None = None
+    position_sigma_m: float | None = None
+    skyline_distance_m: float | None = None
+
+
+@dataclass
+class Measure:
+    """heading(k, x, y, prior_deg, window_deg) and fix(k, x, y, radius_m) -> :class:`Measurement`
+    for stop k; either raises :class:`skyfix.errors.SkyfixError` when the stop's skyline cannot be
+    used."""
+
+    heading: Callable
+    fix: Callable
+
+
+def _fix_due(driven_m, leg_m, filt, cfg, owed) -> bool:
+    return owed or driven_m >= leg_m - 1e-6 or filt.position_sigma_m > cfg.max_position_sigma_m
+
+
+def _attempt_heading(measure, k, filt, cfg):
+    window = max(cfg.heading_window_deg, 3.0 * filt.heading_sigma_deg)
+    m = measure.heading(k, filt.state[0], filt.state[1], filt.state[2], min(window, 180.0))
+    retried = False
+    if m.confidence < cfg.min_confidence and window < 180.0:
+        retried = True  # the truth may lie outside the window, or the view was poor
+        m2 = measure.heading(k, filt.state[0], filt.state[1], filt.state[2], min(2 * window, 180.0))
+        if m2.confidence > m.confidence:
+            m = m2
+    return m, retried
+
+
+def _attempt_fix(measure, k, filt, cfg):
+    r = float(np.clip(3.0 * filt.position_sigma_m, cfg.min_fix_radius_m, cfg.max_fix_radius_m))
+    m = measure.fix(k, filt.state[0], filt.state[1], r)
+    retried = False
+    if m.confidence < cfg.min_confidence and r < cfg.max_fix_radius_m:
+        retried = True
+        m2 = measure.fix(k, filt.state[0], filt.state[1], min(2 * r, cfg.max_fix_radius_m))
+        if m2.confidence > m.confidence:
+            m = m2
+    return m, retried
+
+
+def _heading_sigma(m: Measurement, filt: PoseFilter, cfg) -> float:
+    s = max(m.heading_sigma_deg, cfg.heading_sigma_floor_deg)
+    if m.x is None and m.skyline_distance_m:
+        # measured at the predicted position: a position error p moves the skyline by about
+        # p / d rad at distance d
+        s = math.hypot(s, math.degrees(filt.position_sigma_m / m.skyline_distance_m))
+    return s
+
+
+def _record(k, name, filt, convergence, **kw) -> dict:
+    from ..north import true_heading_deg
+
+    x, y, h = (float(v) for v in filt.state)
+    conv = convergence(x, y)
+    d = {"stop": name, "index": k, "x": x, "y": y,
+         "heading_deg": true_heading_deg(h, conv) if math.isfinite(conv) else h,
+         "grid_heading_deg": h, "meridian_convergence_deg": conv,
+         "position_sigma_m": filt.position_sigma_m, "heading_sigma_deg": filt.heading_sigma_deg}
+    d.update(kw)
+    d["filter"] = {"state": [x, y, h], "cov": filt.cov.tolist()}
+    return d
+
+
+def read_done(path: Path, stops: list[str]) -> list[dict]:
+    """The stop records already written (resume): whole lines only, in the traverse's order; a
+    torn last line (the process killed mid-write) is dropped and rewritten."""
+    if not path.is_file():
+        return []
+    done = []
+    for line in path.read_text().splitlines():
+        try:
+            d = json.loads(line)
+        except json.JSONDecodeError:
+            break
+        if len(done) >= len(stops) or d.get("stop") != stops[len(done)]:
+            raise SkyfixError(f"{path} does not belong to this traverse (stop '{d.get('stop')}' "
+                              f"where '{stops[len(done)] if len(done) < len(stops) else None}' "
+                              "was expected): remove it, or pass another -o")
+        done.append(d)
+    return done
+
+
+def _append(path: Path, rows: list[dict], d: dict) -> None:
+    from .._io import to_json
+
+    rows.append(d)
+    # rewritten whole and moved into place: a crash leaves the old file or the new, never a mix
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as f:
+        f.write("".join(to_json(r) + "\n" for r in rows))
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseConfig = TraverseConfig(),
+                 convergence: Callable = lambda x, y: 0.0, on_stop: Callable | None = None) -> list[dict]:
+    """Fuse the traverse's odometry with the skyline measurements; returns the stop records (also
+    in ``out_dir/stops.jsonl``, one line per stop, appended as each stop ends; an interrupted run
+    resumes at the first stop not written). ``convergence(x, y)`` [deg]: true minus grid north."""
+    from ..north import grid_heading_from_true
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / STOPS_FILE
+    rows = read_done(path, trav.stops)
+    leg_m = config.leg_length_m or trav.leg_length_m
+    if rows:
+        last = rows[-1]
+        filt = PoseFilter(*last["filter"]["state"], last["filter"]["cov"])
+        driven, owed, misses = last["since_fix_m"], last["fix_owed"], last["misses_in_a_row"]
+    else:
+        filt, driven, owed, misses = None, 0.0, False, 0
+    for k in range(len(rows), len(trav.stops)):
+        name = trav.stops[k]
+        if k == 0:
+            s = trav.start
+            if s is not None:
+                h = grid_heading_from_true(s.heading_deg, convergence(s.x, s.y))
+                filt = PoseFilter(s.x, s.y, h, np.diag([s.position_sigma_m ** 2] * 2
+                                                         + [s.heading_sigma_deg ** 2]))
+        else:
+            filt.predict(trav.odometry[k - 1])
+            driven += trav.odometry[k - 1].distance_m
+        kind = "position" if filt is None or _fix_due(driven, leg_m, filt, config, owed) else "heading"
+        update, conf, request, reason, nis, retried = "none", None, None, "", None, False
+        measured = None
+        try:
+            if filt is None:  # no start: a global fix (the measurement function knows no prior)
+                measured = measure.fix(k, None, None, None)
+                if measured.confidence < config.min_confidence:
+                    raise SkyfixError(f"the first stop's fix has confidence {measured.confidence:.2f}: "
+                                      "no start to go on from")
+                filt = PoseFilter(measured.x, measured.y, measured.heading_deg, np.diag(
+                    [max(measured.position_sigma_m, config.position_sigma_floor_m) ** 2] * 2
+                    + [max(measured.heading_sigma_deg, config.heading_sigma_floor_deg) ** 2]))
+                update, conf = "position", measured.confidence
+            else:
+                if kind == "position":
+                    measured, retried = _attempt_fix(measure, k, filt, config)
+                else:
+                    measured, retried = _attempt_heading(measure, k, filt, config)
+                conf = measured.confidence
+                if conf < config.min_confidence:
+                    update, reason = "rejected", f"confidence {conf:.2f} < {config.min_confidence}"
+                else:
+                    hs = _heading_sigma(measured, filt, config)
+                    if kind == "position":
+                        ps = max(measured.position_sigma_m, config.position_sigma_floor_m)
+                        u = filt.update_pose(measured.x, measured.y, measured.heading_deg, ps, hs)
+                    else:
+                        u = filt.update_heading(measured.heading_deg, hs)
+                    nis = u.nis
+                    update = kind if u.accepted else "rejected"
+                    if not u.accepted:
+                        reason = (f"innovation outside the 99.9 % gate (chi-square {u.nis:.1f} "
+                                  f"with {u.dof} dof): the measurement disagrees with the track")
+        except SkyfixError as e:
+            if filt is None:
+                raise SkyfixError(f"stop '{name}': {e}") from None
+            update, reason = "failed", str(e).splitlines()[0]
+            request = {"reason": f"no usable skyline at this stop: {reason}",
+                       "help": "draw the skyline by hand in one image, or drive on to where the "
+                               "skyline is clearer and acquire again"}
+        if update in ("heading", "position"):
+            misses = 0
+            if update == "position":
+                driven, owed = 0.0, False
+        else:
+            misses += 1
+            if kind == "position":
+                owed = True  # the fix is still due at the next stop
+            if request is None and misses >= config.max_rejections:
+                request = {"reason": f"{misses} stops in a row without an accepted skyline update "
+                                     f"(last: {reason})",
+                           "help": "check the skyline detections, draw one by hand, or move the "
+                                   "rover where the skyline is clearer; the position is "
+                                   f"odometry only, 1-sigma {filt.position_sigma_m:.1f} m"}
+        after = 0 if request is not None else misses  # asked: the count starts again
+        meas = None
+        if measured is not None:
+            meas = {"heading_deg_grid": measured.heading_deg, "heading_sigma_deg": measured.heading_sigma_deg,
+                    "x": measured.x, "y": measured.y, "position_sigma_m": measured.position_sigma_m}
+        d = _record(k, name, filt, convergence, update=update, attempted=kind,
+                    confidence=conf, nis=nis, retried=retried, reason=reason or None,
+                    operator_request=request, measurement=meas, since_fix_m=driven,
+                    fix_owed=owed, misses_in_a_row=after)
+        _append(path, rows, d)
+        misses = after
+        if on_stop is not None:
+            on_stop(k, d)
+    return rows
+
+
+def track_errors(rows, truth):
+    """Per stop, (position error [m], heading error [deg]) of the records against the truth
+    (``truth.jsonl`` lines: x, y, heading_deg from true north)."""
+    out = []
+    for r, t in zip(rows, truth):
+        out.append((math.hypot(r["x"] - t["x"], r["y"] - t["y"]),
+                    abs(float(wrap_deg(r["heading_deg"] - t["heading_deg"])))))
+    return out

@@ -1,0 +1,211 @@
+"""The traverse filter against closed forms, and the loop's gating, operator requests, resume and
+input checks on scripted measurements."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from skyfix.errors import ParameterError, SkyfixError
+from skyfix.traverse import (Measure, Measurement, Odometry, PoseFilter, TraverseConfig,
+                             read_traverse, run_traverse)
+from skyfix.traverse.inputs import Start, Traverse
+
+
+def test_straight_path_covariance_grows_as_the_closed_form():
+    """Heading 0 (north), n steps of f metres, per-step sigmas sf, sl, sh, a perfect start.
+    Linearised: y_n = sum of forward steps, var n sf^2; x_n = f sum_k dh_k - sum_k l_k with dh_k
+    the heading error accumulated before step k, var n sl^2 + f^2 sh^2 (n-1) n (2n-1) / 6
+    (sh in rad); var(heading) = n sh^2."""
+    f, sf, sl, sh, n = 50.0, 1.0, 0.3, 0.2, 40
+    filt = PoseFilter(0.0, 0.0, 0.0, np.zeros((3, 3)))
+    for _ in range(n):
+        filt.predict(Odometry.from_sigmas(f, 0.0, 0.0, sf, sl, sh))
+    shr = math.radians(sh)
+    assert filt.state == pytest.approx([0.0, n * f, 0.0])
+    assert filt.cov[1, 1] == pytest.approx(n * sf ** 2)
+    assert filt.cov[0, 0] == pytest.approx(n * sl ** 2 + f ** 2 * shr ** 2 * (n - 1) * n * (2 * n - 1) / 6)
+    assert filt.cov[2, 2] == pytest.approx(n * sh ** 2)
+
+
+def test_the_filter_covariance_matches_a_monte_carlo_of_the_exact_motion():
+    rng = np.random.default_rng(0)
+    steps = [(30.0, 2.0, 4.0)] * 25  # a curving path: forward, left [m], heading change [deg]
+    sig = (0.6, 0.2, 0.3)
+    filt = PoseFilter(100.0, 200.0, 30.0, np.diag([1.0, 1.0, 0.25]))
+    for s in steps:
+        filt.predict(Odometry.from_sigmas(*s, *sig))
+    m = 20000
+    x = rng.normal(100.0, 1.0, m)
+    y = rng.normal(200.0, 1.0, m)
+    h = rng.normal(30.0, 0.5, m)
+    for f, l_, dh in steps:
+        fn, ln, dn = f + rng.normal(0, sig[0], m), l_ + rng.normal(0, sig[1], m), dh + rng.normal(0, sig[2], m)
+        r = np.radians(h)
+        x, y, h = x + fn * np.sin(r) - ln * np.cos(r), y + fn * np.cos(r) + ln * np.sin(r), h + dn
+    mc = np.cov(np.stack([x, y, h]))
+    assert filt.state[:2] == pytest.approx([x.mean(), y.mean()], abs=0.5)
+    assert np.allclose(filt.cov, mc, rtol=0.1, atol=0.05 * np.sqrt(np.outer(np.diag(mc), np.diag(mc))).max())
+
+
+def test_an_update_near_360_wraps_and_shrinks_the_variance():
+    filt = PoseFilter(0.0, 0.0, 359.5, np.diag([1.0, 1.0, 4.0]))
+    u = filt.update_heading(0.5, 2.0)  # 1 deg of innovation, not 359
+    assert u.accepted and u.innovation[0] == pytest.approx(1.0)
+    assert filt.state[2] == pytest.approx(0.0, abs=1e-9) or filt.state[2] == pytest.approx(360.0)
+    assert filt.cov[2, 2] == pytest.approx(2.0)  # 1 / (1/4 + 1/4)
+
+
+def test_a_confident_outlier_is_gated_out():
+    filt = PoseFilter(0.0, 0.0, 90.0, np.diag([4.0, 4.0, 1.0]))
+    u = filt.update_heading(100.0, 0.2)  # 10 deg off a 1-deg track: chi-square ~ 96
+    assert not u.accepted and u.nis > 50
+    assert filt.state[2] == 90.0 and filt.cov[2, 2] == 1.0
+    u = filt.update_pose(30.0, 0.0, 90.0, 0.5, 0.2)  # 30 m off a 2 m track
+    assert not u.accepted and filt.state[0] == 0.0
+
+
+# --- the loop on scripted measurements -----------------------------------------------------------
+
+def _straight(n, step=50.0, start=True):
+    names = [f"s{k:03d}" for k in range(n)]
+    odo = [Odometry.from_sigmas(step, 0.0, 0.0, 0.02 * step, 0.01 * step, 0.25) for _ in names[1:]]
+    st = Start(0.0, 0.0, 0.0, 1.0, 0.5) if start else None
+    truth = [{"x": 0.0, "y": step * k, "heading_deg": 0.0} for k in range(n)]
+    return Traverse(root=None, stops=names, folders=[None] * n, odometry=odo, start=st,
+                    truth=truth, leg_length_m=500.0)
+
+
+def _scripted(bad=(), outlier=(), fail=()):
+    """Measurements of the truth (heading 0, x 0, y 50 k) with 0.1 deg / 0.5 m sigmas; stops in
+    ``bad`` low confidence, in ``outlier`` 15 deg / 60 m off at confidence 0.99, in ``fail`` no
+    skyline."""
+    calls = []
+
+    def heading(k, x, y, prior, window):
+        calls.append(("h", k, window))
+        if k in fail:
+            raise SkyfixError("no skyline detected in any image")
+        if k in bad:
+            return Measurement(40.0, 3.0, 0.05)
+        return Measurement(15.0 if k in outlier else 0.0, 0.1, 0.99, skyline_distance_m=3000.0)
+
+    def fix(k, x, y, r):
+        calls.append(("p", k, r))
+        if k in fail:
+            raise SkyfixError("no skyline detected in any image")
+        if k in bad:
+            return Measurement(40.0, 3.0, 0.05, 300.0, 50 * k, 40.0)
+        dx = 60.0 if k in outlier else 0.0
+        return Measurement(0.0, 0.1, 0.99, dx, 50.0 * k, 0.5)
+
+    return Measure(heading, fix), calls
+
+
+def test_headings_at_every_stop_and_a_fix_at_each_legs_end(tmp_path):
+    trav = _straight(23)
+    m, calls = _scripted()
+    rows = run_traverse(trav, m, tmp_path)
+    kinds = [r["update"] for r in rows]
+    assert kinds[0] == "heading"
+    assert [k for k, u in enumerate(kinds) if u == "position"] == [10, 20]  # every 500 m
+    assert all(u in ("heading", "position") for u in kinds)
+    assert all(r["operator_request"] is None for r in rows)
+    assert max(abs(r["x"]) for r in rows) < 3.0 and rows[-1]["heading_sigma_deg"] < 0.2
+    assert rows[20]["position_sigma_m"] < 0.6  # right after a fix
+
+
+def test_an_outlier_is_rejected_and_the_track_holds(tmp_path):
+    m, _ = _scripted(outlier={5, 10})  # a heading stop and a leg end
+    rows = run_traverse(_straight(13), m, tmp_path)
+    assert rows[5]["update"] == "rejected" and "gate" in rows[5]["reason"]
+    assert rows[10]["update"] == "rejected" and rows[11]["update"] == "position"  # fix owed, then taken
+    assert all(abs(r["heading_deg"]) < 1.0 or abs(r["heading_deg"] - 360) < 1.0 for r in rows)
+    assert all(r["operator_request"] is None for r in rows)
+
+
+def test_operator_requests_where_detection_fails_and_after_n_misses(tmp_path):
+    m, calls = _scripted(bad={3, 4, 5}, fail={8})
+    rows = run_traverse(_straight(12), m, tmp_path, config=TraverseConfig(max_rejections=3))
+    req = [k for k, r in enumerate(rows) if r["operator_request"] is not None]
+    assert req == [5, 8]
+    assert "3 stops in a row" in rows[5]["operator_request"]["reason"]
+    assert "no usable skyline" in rows[8]["operator_request"]["reason"]
+    assert [r["update"] for r in rows[3:6]] == ["rejected"] * 3 and rows[8]["update"] == "failed"
+    # a low-confidence heading is tried again with the window doubled
+    assert ("h", 3, 10.0) in calls and ("h", 3, 20.0) in calls
+    assert rows[6]["update"] == "heading"
+
+
+def test_an_interrupted_traverse_resumes_at_the_first_stop_not_written(tmp_path):
+    m, _ = _scripted(outlier={4})
+    full = run_traverse(_straight(15), m, tmp_path / "a")
+
+    class Stop(Exception):
+        pass
+
+    def interrupt(k, d):
+        if k == 6:
+            raise Stop
+
+    with pytest.raises(Stop):
+        run_traverse(_straight(15), m, tmp_path / "b", on_stop=interrupt)
+    lines = (tmp_path / "b" / "stops.jsonl").read_text().splitlines()
+    assert len(lines) == 7
+    m2, calls = _scripted(outlier={4})
+    resumed = run_traverse(_straight(15), m2, tmp_path / "b")
+    assert min(c[1] for c in calls) == 7  # nothing measured again
+    assert (tmp_path / "a" / "stops.jsonl").read_text() == (tmp_path / "b" / "stops.jsonl").read_text()
+    assert resumed == full
+
+
+def test_no_start_takes_a_global_fix_first(tmp_path):
+    m, calls = _scripted()
+    rows = run_traverse(_straight(4, start=False), m, tmp_path)
+    assert calls[0] == ("p", 0, None) and rows[0]["update"] == "position"
+    assert rows[0]["position_sigma_m"] == pytest.approx(0.5)
+
+
+# --- the traverse folder --------------------------------------------------------------------------
+
+def _folder(tmp_path, odo_lines, n=3):
+    for k in range(n):
+        (tmp_path / f"stop_{k:03d}").mkdir()
+        (tmp_path / f"stop_{k:03d}" / "acquisition.json").write_text("{}")
+    (tmp_path / "odometry.jsonl").write_text("\n".join(odo_lines) + "\n")
+    return tmp_path
+
+
+GOOD = json.dumps({"forward_m": 50, "left_m": 0, "dheading_deg": 1.0, "sigma_forward_m": 1,
+                   "sigma_left_m": 0.5, "sigma_heading_deg": 0.25})
+
+
+def test_a_traverse_folder_is_read_in_order(tmp_path):
+    cov = json.dumps({"from": "stop_001", "to": "stop_002", "forward_m": 40, "left_m": 1,
+                      "dheading_deg": -2, "cov": [[1, 0, 0], [0, 0.25, 0], [0, 0, 0.0625]]})
+    trav = read_traverse(_folder(tmp_path, [GOOD, cov]))
+    assert trav.stops == ["stop_000", "stop_001", "stop_002"] and trav.start is None
+    assert trav.odometry[1].forward_m == 40 and trav.odometry[1].cov[2, 2] == 0.0625
+
+
+@pytest.mark.parametrize("bad, says", [
+    ('{"forward_m": 50, "left_m": 0}', "line 2: 'dheading_deg' is missing"),
+    ('{"forward_m": "x", "left_m": 0, "dheading_deg": 0}', "line 2: 'forward_m' must be a finite number"),
+    ('not json', "line 2: not JSON"),
+    (GOOD.replace('"sigma_left_m": 0.5', '"sigma_left_m": 0'), "line 2: 'sigma_left_m' must be > 0"),
+    ('{"forward_m": 1, "left_m": 0, "dheading_deg": 0, "cov": [[1, 2, 0], [2, 1, 0], [0, 0, 1]]}',
+     "line 2: 'cov' must be symmetric positive definite"),
+])
+def test_a_malformed_odometry_file_names_the_line(tmp_path, bad, says):
+    with pytest.raises(ParameterError, match=says.replace("(", r"\(")):
+        read_traverse(_folder(tmp_path, [GOOD, bad]))
+
+
+def test_odometry_steps_must_match_the_stops(tmp_path):
+    with pytest.raises(ParameterError, match="1 odometry steps for 3 stops"):
+        read_traverse(_folder(tmp_path, [GOOD]))
+    wrong = json.dumps({**json.loads(GOOD), "from": "stop_002", "to": "stop_001"})
+    (tmp_path / "x").mkdir()
+    with pytest.raises(ParameterError, match="line 1: step 0 goes from 'stop_000' to 'stop_001'"):
+        read_traverse(_folder(tmp_path / "x", [wrong, GOOD]))
