@@ -132,7 +132,7 @@ def test_operator_requests_where_detection_fails_and_after_n_misses(tmp_path):
     assert req == [5, 8]
     assert "3 stops in a row" in rows[5]["operator_request"]["reason"]
     assert "no usable skyline" in rows[8]["operator_request"]["reason"]
-    assert [r["update"] for r in rows[3:6]] == ["rejected"] * 3 and rows[8]["update"] == "failed"
+    assert [r["update"] for r in rows[3:6]] == ["rejected"] * 3 and rows[8]["update"] == "none"
     # a low-confidence heading is tried again with the window doubled
     assert ("h", 3, 10.0) in calls and ("h", 3, 20.0) in calls
     assert rows[6]["update"] == "heading"

@@ -32,13 +32,17 @@ COMMANDS = {
     "demo": ("demo", "demo", "Run the whole pipeline on bundled or generated data."),
     "evaluate": ("evaluate", "evaluate", "Evaluate a scenario on simulated cases."),
     "evaluate-detect": ("evaluate", "evaluate_detect", "Score skyline detection on labelled images."),
+    "traverse": ("traverse", "traverse",
+                 "Fuse a traverse's odometry with skyline headings and position fixes."),
+    "simulate-traverse": ("traverse", "simulate_traverse",
+                          "Simulate a traverse: stops, odometry with drift, truth."),
     "acquisition-init": ("acquisition", "acquisition_init",
                          "Write a checked acquisition.json for a folder of your camera's images."),
 }
 
 
 #: commands whose output a rerun continues rather than redoes
-RESUMABLE = {"build-db"}
+RESUMABLE = {"build-db", "traverse", "simulate-traverse"}
 
 
 class LazyGroup(click.Group):

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -160,16 +159,11 @@ def read_done(path: Path, stops: list[str]) -> list[dict]:
 
 
 def _append(path: Path, rows: list[dict], d: dict) -> None:
-    from .._io import to_json
+    from .._io import write_jsonl
 
     rows.append(d)
-    # rewritten whole and moved into place: a crash leaves the old file or the new, never a mix
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as f:
-        f.write("".join(to_json(r) + "\n" for r in rows))
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    # rewritten whole and moved into place: a kill leaves the old file or the new, never a mix
+    write_jsonl(path, rows)
 
 
 def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseConfig = TraverseConfig(),
@@ -237,7 +231,7 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
         except SkyfixError as e:
             if filt is None:
                 raise SkyfixError(f"stop '{name}': {e}") from None
-            update, reason = "failed", str(e).splitlines()[0]
+            update, reason = "none", str(e).splitlines()[0]
             request = {"reason": f"no usable skyline at this stop: {reason}",
                        "help": "draw the skyline by hand in one image, or drive on to where the "
                                "skyline is clearer and acquire again"}

@@ -1,0 +1,203 @@
+"""``skyfix traverse`` (odometry fused with skyline fixes along a traverse) and
+``skyfix simulate-traverse`` (a traverse folder from the simulator)."""
+
+from __future__ import annotations
+
+import logging
+
+import click
+
+from ..errors import ParameterError
+
+log = logging.getLogger("skyfix.stage")  # one line per stop at the default verbosity
+
+
+@click.command("traverse")
+@click.argument("traverse_dir", type=click.Path(file_okay=False))
+@click.option("--dem", "dem_paths", required=True, multiple=True, type=click.Path(dir_okay=False),
+              help="DEM (repeat for a stack of DEMs of one place).")
+@click.option("--db", "db_path", type=click.Path(), help="Skyline database for the position fixes "
+              "(without it they search the DEM in a disc about the prediction).")
+@click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False),
+              help="Output folder: stops.jsonl, track.geojson, track.png.")
+@click.option("--leg-length-m", type=float, default=None,
+              help="A position fix after this many metres driven [m] (default: traverse.json's, else 1000).")
+@click.option("--min-confidence", type=float, default=0.5, show_default=True,
+              help="Updates below it are retried once, then not used.")
+@click.option("--max-rejections", type=int, default=3, show_default=True,
+              help="Stops in a row without an accepted update before the operator is asked.")
+@click.option("--no-plot", is_flag=True, help="Do not draw track.png.")
+def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence, max_rejections,
+             no_plot):
+    """Fuse a traverse's odometry with skyline headings and position fixes.
+
+    Rerun with the same -o to resume at the first stop not yet written.
+    """
+    import math
+    from pathlib import Path
+
+    from .._io import check_folder_output
+    from ..north import meridian_convergence_deg
+    from ..progress import stage
+    from ..traverse import TraverseConfig, read_done, read_traverse, run_traverse
+    from ..traverse.measure import acquisition_measure
+
+    if not (0.0 <= min_confidence <= 1.0):
+        raise ParameterError(f"--min-confidence must be within [0, 1], got {min_confidence}")
+    if max_rejections < 1:
+        raise ParameterError(f"--max-rejections must be >= 1, got {max_rejections}")
+    if leg_length_m is not None and not (math.isfinite(leg_length_m) and leg_length_m > 0):
+        raise ParameterError(f"--leg-length-m must be a number of metres > 0, got {leg_length_m}")
+    out = check_folder_output(out)
+    with stage("inputs checked") as st:
+        trav = read_traverse(traverse_dir)
+        read_done(Path(out) / "stops.jsonl", trav.stops)  # another traverse's output is refused now
+        db = None
+        if db_path is not None:
+            from ..database import open_database
+
+            db = open_database(db_path)
+        elif trav.start is None:
+            raise ParameterError("the traverse has no start (traverse.json 'start'): give --db so "
+                                 "that the first stop can be located without a prior")
+        from ..stack import load_dems
+
+        dem = load_dems(list(dem_paths))
+        st.result = f"{len(trav.stops)} stops"
+    cfg = TraverseConfig(min_confidence=min_confidence, max_rejections=max_rejections,
+                         leg_length_m=leg_length_m)
+
+    def convergence(x, y):
+        c = meridian_convergence_deg(dem.crs_wkt, x, y)
+        return c if math.isfinite(c) else 0.0
+
+    def progress(k, d):
+        req = " OPERATOR REQUEST" if d["operator_request"] else ""
+        conf = "" if d["confidence"] is None else f", confidence {d['confidence']:.2f}"
+        log.info("stop %d/%d %s: %s%s; +-%.1f m, +-%.2f deg%s", k + 1, len(trav.stops), d["stop"],
+                 d["update"] if d["update"] != d["attempted"] or d["update"] == "rejected"
+                 else f"{d['update']} update", conf, d["position_sigma_m"], d["heading_sigma_deg"], req)
+
+    rows = run_traverse(trav, acquisition_measure(trav, dem, db=db), out, config=cfg,
+                        convergence=convergence, on_stop=progress)
+    write_track(Path(out), rows, dem.crs_wkt)
+    if not no_plot:
+        plot_track(Path(out) / "track.png", rows, trav, dem, convergence)
+    asked = sum(r["operator_request"] is not None for r in rows)
+    click.echo(f"{len(rows)} stops: {sum(r['update'] == 'heading' for r in rows)} heading and "
+               f"{sum(r['update'] == 'position' for r in rows)} position updates, "
+               f"{sum(r['update'] == 'rejected' for r in rows)} rejected, {asked} operator "
+               f"request{'s' * (asked != 1)} -> {out}", err=True)
+
+
+def write_track(out, rows, crs_wkt) -> None:
+    """``track.geojson``: the fused track as a LineString and a Point per stop (lon/lat WGS 84 on
+    Earth, the body's own geodetic coordinates elsewhere; work-CRS x, y in the properties)."""
+    from .._io import write_json
+    from ..pose.fix import crs_and_lonlat
+
+    feats, line = [], []
+    for r in rows:
+        _, lon, lat = crs_and_lonlat(crs_wkt, r["x"], r["y"])
+        line.append([lon, lat])
+        props = {k: r[k] for k in ("stop", "x", "y", "heading_deg", "position_sigma_m",
+                                   "heading_sigma_deg", "update", "confidence", "operator_request")}
+        feats.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon, lat]},
+                      "properties": props})
+    track = {"type": "Feature", "geometry": {"type": "LineString", "coordinates": line},
+             "properties": {"name": "fused track", "stops": len(rows)}}
+    write_json(out / "track.geojson", {"type": "FeatureCollection", "features": [track] + feats})
+
+
+def plot_track(path, rows, trav, dem, convergence) -> None:
+    """The track over a hillshade of the DEM around it: truth (when known), odometry alone, fused;
+    the stops where the operator was asked marked."""
+    import numpy as np
+
+    from .._io import save_figure
+    from ..report import pyplot
+    from ..traverse.simulate import odometry_only
+
+    plt = pyplot()
+    dem = getattr(dem, "members", [dem])[0]  # a stack: its finest DEM for the hillshade
+    xs = np.array([r["x"] for r in rows])
+    ys = np.array([r["y"] for r in rows])
+    pad = 300.0
+    x0, x1, y0, y1 = xs.min() - pad, xs.max() + pad, ys.min() - pad, ys.max() + pad
+    fig, ax = plt.subplots(figsize=(7, 7))
+    c0 = max(int((x0 - dem.x0) / dem.cell_m), 0)
+    c1 = min(int((x1 - dem.x0) / dem.cell_m) + 1, dem.shape[1])
+    r0 = max(int((dem.y0 - y1) / dem.cell_m), 0)
+    r1 = min(int((dem.y0 - y0) / dem.cell_m) + 1, dem.shape[0])
+    z = np.asarray(dem.z[r0:r1, c0:c1], float)
+    if z.size > 4:
+        gy, gx = np.gradient(np.nan_to_num(z, nan=np.nanmean(z)), dem.cell_m)
+        shade = (np.cos(np.radians(45)) * 1 / np.sqrt(1 + gx ** 2 + gy ** 2)
+                 + np.sin(np.radians(45)) * (-gx + gy) / np.sqrt(2) / np.sqrt(1 + gx ** 2 + gy ** 2))
+        ax.imshow(shade, cmap="gray", extent=(dem.x0 + c0 * dem.cell_m, dem.x0 + c1 * dem.cell_m,
+                                              dem.y0 - r1 * dem.cell_m, dem.y0 - r0 * dem.cell_m),
+                  alpha=0.6)
+    if trav.truth:
+        ax.plot([t["x"] for t in trav.truth], [t["y"] for t in trav.truth], "k-", lw=2, label="truth")
+    if trav.start is not None:
+        od = np.array(odometry_only(trav, convergence))
+        ax.plot(od[: len(rows), 0], od[: len(rows), 1], "--", color="tab:orange", label="odometry alone")
+    ax.plot(xs, ys, "-", color="tab:blue", lw=1.5, label="fused")
+    fix = [k for k, r in enumerate(rows) if r["update"] == "position"]
+    ax.plot(xs[fix], ys[fix], "o", color="tab:green", ms=6, label="position fix")
+    ask = [k for k, r in enumerate(rows) if r["operator_request"]]
+    if ask:
+        ax.plot(xs[ask], ys[ask], "x", color="tab:red", ms=10, mew=2, label="operator request")
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"traverse of {len(rows)} stops")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    save_figure(fig, path, bbox_inches="tight")
+    plt.close(fig)
+
+
+@click.command("simulate-traverse")
+@click.argument("dem", type=click.Path(dir_okay=False))
+@click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False),
+              help="Traverse folder to write (rerun to resume: rendered stops are kept).")
+@click.option("--length-m", type=float, default=3000.0, show_default=True, help="Path length [m].")
+@click.option("--stop-spacing-m", type=float, default=50.0, show_default=True, help="Between stops [m].")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--distance-drift", type=float, default=0.02, show_default=True,
+              help="Odometry's 1-sigma error per step, as a share of the step.")
+@click.option("--heading-drift-deg-per-100m", type=float, default=0.5, show_default=True,
+              help="Odometry's heading 1-sigma error per 100 m [deg].")
+@click.option("--stop-conditions", multiple=True, metavar="STOP=CONDITIONS",
+              help="Conditions at one stop, e.g. 12=clouds:1 or 20=dark:1 (repeatable).")
+@click.option("--mode", type=click.Choice(["frames", "panorama"]), default="frames", show_default=True)
+@click.option("--pano-size", type=int, nargs=2, default=(2048, 512), show_default=True, metavar="W H")
+@click.option("--leg-length-m", type=float, default=1000.0, show_default=True,
+              help="Written to traverse.json: a position fix after this many metres.")
+@click.option("--no-start", is_flag=True, help="Write no start fix (the first stop is located).")
+def simulate_traverse(dem, out, length_m, stop_spacing_m, seed, distance_drift,
+                      heading_drift_deg_per_100m, stop_conditions, mode, pano_size, leg_length_m,
+                      no_start):
+    """Simulate a traverse: stops with acquisitions, odometry with drift, and the truth."""
+    from ..dem import load_dem
+    from ..traverse.simulate import parse_stop_conditions, simulate_traverse as _simulate
+
+    if seed < 0:
+        raise ParameterError(f"--seed must be >= 0, got {seed}")
+    if not (0 <= distance_drift < 1) or heading_drift_deg_per_100m < 0:
+        raise ParameterError("drifts must be >= 0 (the distance drift a share below 1)")
+    conds = parse_stop_conditions(stop_conditions)
+    d = load_dem(dem)
+
+    def progress(k, n):
+        if (k + 1) % 10 == 0 or k + 1 == n:
+            log.info("stop %d/%d rendered", k + 1, n)
+
+    path = _simulate(d, out, length_m=length_m, stop_spacing_m=stop_spacing_m, seed=seed,
+                     distance_drift=distance_drift,
+                     heading_drift_deg_per_100m=heading_drift_deg_per_100m, stop_conditions=conds,
+                     mode=mode, pano_size=pano_size, with_start=not no_start,
+                     leg_length_m=leg_length_m, on_stop=progress)
+    click.echo(f"traverse -> {path}", err=True)

@@ -1,0 +1,165 @@
+"""A simulated traverse: a smooth path over a DEM, an acquisition from the simulator at every stop,
+odometry with drift between the stops, and the truth.
+
+The rover at stop k faces ``h_k``; it turns by ``dh_k`` and drives ``s`` metres straight on to stop
+k + 1. In stop k's body frame that is forward ``s cos dh``, left ``-s sin dh`` and a heading change
+``dh`` (headings clockwise). The odometry it reports adds, per step, N(0, drift s) to forward and
+left and N(0, heading drift * s / 100 m) to the heading change, and says those sigmas.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ParameterError
+from .inputs import ODOMETRY_FILE, TRAVERSE_FILE, TRUTH_FILE
+
+
+@dataclass(frozen=True)
+class TraversePlan:
+    """Stops (x, y) [m] and headings [deg from grid north], and the true odometry steps
+    (forward, left [m], dheading [deg])."""
+
+    x: np.ndarray
+    y: np.ndarray
+    heading_deg: np.ndarray
+    steps: np.ndarray
+
+
+def plan_path(dem, length_m: float, spacing_m: float, seed: int, *, margin_m: float | None = None,
+              turn_sigma_deg: float = 8.0) -> TraversePlan:
+    """A random smooth path of ``length_m`` [m] with a stop every ``spacing_m`` [m], kept at least
+    ``margin_m`` [m] (default: a fifth of the DEM's smaller side, at most 3 km) inside the DEM."""
+    if not (math.isfinite(length_m) and length_m > 0 and math.isfinite(spacing_m) and 0 < spacing_m <= length_m):
+        raise ParameterError(f"need 0 < stop spacing <= length, got {spacing_m} and {length_m} m")
+    x0, y0, x1, y1 = dem.bounds
+    if margin_m is None:
+        margin_m = min(0.2 * min(x1 - x0, y1 - y0), 3000.0)
+    lo = np.array([x0 + margin_m, y0 + margin_m])
+    hi = np.array([x1 - margin_m, y1 - margin_m])
+    if np.any(hi - lo < 2 * spacing_m):
+        raise ParameterError("the DEM is too small for this traverse's margin and spacing")
+    rng = np.random.default_rng(seed)
+    n = int(round(length_m / spacing_m)) + 1
+    p = rng.uniform(lo, hi)
+    h = rng.uniform(0.0, 360.0)
+    xs, ys, hs, steps = [p[0]], [p[1]], [h], []
+    centre = (lo + hi) / 2
+    for _ in range(n - 1):
+        turn = rng.normal(0.0, turn_sigma_deg)
+        for _try in range(36):
+            h2 = h + turn
+            q = p + spacing_m * np.array([math.sin(math.radians(h2)), math.cos(math.radians(h2))])
+            if np.all(q >= lo) and np.all(q <= hi):
+                break
+            # steer towards the centre: the turn that heads there, plus a little noise
+            to_c = math.degrees(math.atan2(centre[0] - p[0], centre[1] - p[1]))
+            turn = ((to_c - h + 180.0) % 360.0 - 180.0) * 0.5 + rng.normal(0.0, turn_sigma_deg)
+        dh = turn
+        steps.append((spacing_m * math.cos(math.radians(dh)), -spacing_m * math.sin(math.radians(dh)), dh))
+        h = (h + dh) % 360.0
+        p = q
+        xs.append(p[0])
+        ys.append(p[1])
+        hs.append(h)
+    return TraversePlan(np.array(xs), np.array(ys), np.array(hs), np.array(steps).reshape(-1, 3))
+
+
+def parse_stop_conditions(items) -> dict:
+    """``["12=clouds:1", "20=dark"]`` -> {12: "clouds:1", 20: "dark"}."""
+    out = {}
+    for it in items or ():
+        k, sep, cond = str(it).partition("=")
+        if not sep or not k.strip().isdigit() or not cond.strip():
+            raise ParameterError(f"stop condition '{it}': write STOP=CONDITIONS, e.g. 12=clouds:1")
+        out[int(k)] = cond.strip()
+    return out
+
+
+def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
+                      distance_drift=0.02, heading_drift_deg_per_100m=0.5,
+                      stop_conditions: dict | None = None, camera="navcam", mode="frames",
+                      pano_size=(2048, 512), tilt_deg=15.0, camera_height_m=1.5, planet=None,
+                      start_sigmas=(2.0, 1.0), with_start=True, leg_length_m=1000.0,
+                      on_stop=None) -> Path:
+    """Write a traverse folder ``out`` (``docs/conventions.md``, "Traverse"): ``stop_NNN/``
+    acquisitions, ``odometry.jsonl``, ``traverse.json`` (the start: the truth blurred by
+    ``start_sigmas`` = (position [m], heading [deg]) 1-sigma), ``truth.jsonl``. A stop already
+    rendered is kept (rerunning resumes)."""
+    from ..formats import Truth
+    from ..north import meridian_convergence_deg, true_heading_deg
+    from ..simulate import simulate_acquisition
+
+    out = Path(out)
+    stop_conditions = dict(stop_conditions or {})
+    plan = plan_path(dem, length_m, stop_spacing_m, seed)
+    n = plan.x.size
+    bad = [k for k in stop_conditions if not 0 <= k < n]
+    if bad:
+        raise ParameterError(f"stop conditions for stops {bad}: the traverse has stops 0-{n - 1}")
+    rng = np.random.default_rng(seed + 1)
+    out.mkdir(parents=True, exist_ok=True)
+    conv = [meridian_convergence_deg(dem.crs_wkt, x, y) for x, y in zip(plan.x, plan.y)]
+    conv = [c if math.isfinite(c) else 0.0 for c in conv]
+    names = [f"stop_{k:03d}" for k in range(n)]
+    for k in range(n):
+        folder = out / names[k]
+        if not (folder / "acquisition.json").is_file():
+            simulate_acquisition(dem, Truth(float(plan.x[k]), float(plan.y[k]), float(plan.heading_deg[k])),
+                                 folder, camera=camera, mode=mode, pano_size=tuple(pano_size),
+                                 tilt_deg=tilt_deg if mode == "frames" else 0.0,
+                                 camera_height_m=camera_height_m, planet=planet,
+                                 conditions=stop_conditions.get(k), seed=seed * 1000 + k)
+        if on_stop is not None:
+            on_stop(k, n)
+    s = stop_spacing_m
+    sig = (distance_drift * s, distance_drift * s, heading_drift_deg_per_100m * s / 100.0)
+    lines = []
+    for k, (f, l_, dh) in enumerate(plan.steps):
+        lines.append({"from": names[k], "to": names[k + 1],
+                      "forward_m": f + rng.normal(0, sig[0]), "left_m": l_ + rng.normal(0, sig[1]),
+                      "dheading_deg": dh + rng.normal(0, sig[2]),
+                      "sigma_forward_m": sig[0], "sigma_left_m": sig[1], "sigma_heading_deg": sig[2]})
+    truth = [{"stop": names[k], "x": float(plan.x[k]), "y": float(plan.y[k]),
+              "heading_deg": true_heading_deg(float(plan.heading_deg[k]), conv[k])}
+             for k in range(n)]
+    meta = {"stops": names, "leg_length_m": leg_length_m,
+            "simulation": {"seed": seed, "length_m": length_m, "stop_spacing_m": stop_spacing_m,
+                           "distance_drift": distance_drift,
+                           "heading_drift_deg_per_100m": heading_drift_deg_per_100m,
+                           "stop_conditions": {names[k]: c for k, c in sorted(stop_conditions.items())}}}
+    if with_start:
+        ps, hsd = start_sigmas
+        meta["start"] = {"x": float(plan.x[0] + rng.normal(0, ps)), "y": float(plan.y[0] + rng.normal(0, ps)),
+                         "heading_deg": truth[0]["heading_deg"] + float(rng.normal(0, hsd)),
+                         "position_sigma_m": ps, "heading_sigma_deg": hsd}
+    from .._io import write_json, write_jsonl
+
+    write_jsonl(out / ODOMETRY_FILE, lines)
+    write_jsonl(out / TRUTH_FILE, truth)
+    write_json(out / TRAVERSE_FILE, meta)
+    return out
+
+
+def odometry_only(trav, convergence=lambda x, y: 0.0) -> list[tuple[float, float, float]]:
+    """Dead reckoning from the start along the reported odometry: (x, y, grid heading) per stop;
+    ``convergence(x, y)`` [deg] true minus grid north."""
+    from ..north import grid_heading_from_true
+    from .ekf import PoseFilter
+
+    s = trav.start
+    f = PoseFilter(s.x, s.y, grid_heading_from_true(s.heading_deg, convergence(s.x, s.y)), np.eye(3))
+    out = [tuple(f.state)]
+    for o in trav.odometry:
+        f.predict(o)
+        out.append(tuple(f.state))
+    return out
+
+
+def read_truth(root) -> list[dict]:
+    return [json.loads(line) for line in (Path(root) / TRUTH_FILE).read_text().splitlines() if line]

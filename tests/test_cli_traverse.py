@@ -1,0 +1,70 @@
+"""``skyfix simulate-traverse`` then ``skyfix traverse`` end to end on a short traverse of small
+panoramas: the outputs the conventions promise, headings against the truth, resume, refusals."""
+
+import json
+import math
+
+import pytest
+from click.testing import CliRunner
+
+from conftest import shared_dem_path
+from skyfix.cli.main import cli
+
+
+def run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    dem = shared_dem_path("south_glacier_20m")
+    trav = tmp_path_factory.mktemp("trav") / "t"
+    r = run("simulate-traverse", dem, "-o", trav, "--length-m", 150, "--stop-spacing-m", 50,
+            "--mode", "panorama", "--pano-size", 1440, 360, "--leg-length-m", 90, "--seed", 3)
+    assert r.exit_code == 0, r.output
+    return dem, trav
+
+
+def test_a_simulated_traverse_is_fused_within_the_truth(simulated, tmp_path):
+    dem, trav = simulated
+    out = tmp_path / "out"
+    r = run("traverse", trav, "--dem", dem, "-o", out)
+    assert r.exit_code == 0, r.output
+    assert "stop 4/4" in r.output
+    rows = [json.loads(line) for line in (out / "stops.jsonl").read_text().splitlines()]
+    truth = [json.loads(line) for line in (trav / "truth.jsonl").read_text().splitlines()]
+    assert [r_["stop"] for r_ in rows] == [t["stop"] for t in truth]
+    for r_ in rows:
+        assert {"stop", "x", "y", "heading_deg", "position_sigma_m", "heading_sigma_deg", "update",
+                "confidence", "operator_request"} <= set(r_)
+    assert [r_["update"] for r_ in rows] == ["heading", "heading", "position", "heading"]
+    for r_, t in zip(rows, truth):  # measured: heading errors <= 0.07 deg, positions <= 3 m
+        assert abs((r_["heading_deg"] - t["heading_deg"] + 180) % 360 - 180) < 0.5
+        assert math.hypot(r_["x"] - t["x"], r_["y"] - t["y"]) < 3 * max(r_["position_sigma_m"], 1.0)
+    assert math.hypot(rows[2]["x"] - truth[2]["x"], rows[2]["y"] - truth[2]["y"]) < 2.0
+    gj = json.loads((out / "track.geojson").read_text())
+    kinds = [f["geometry"]["type"] for f in gj["features"]]
+    assert kinds == ["LineString"] + ["Point"] * 4
+    assert (out / "track.png").stat().st_size > 10_000
+    # rerun: everything is written, nothing is measured again, the file is unchanged
+    before = (out / "stops.jsonl").read_text()
+    r = run("traverse", trav, "--dem", dem, "-o", out, "--no-plot")
+    assert r.exit_code == 0, r.output
+    assert "stop " not in r.output.replace("stops:", "") and (out / "stops.jsonl").read_text() == before
+
+
+def test_a_malformed_traverse_is_refused_before_any_stop(simulated, tmp_path):
+    dem, trav = simulated
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(trav, bad)
+    lines = (bad / "odometry.jsonl").read_text().splitlines()
+    lines[1] = lines[1].replace('"forward_m"', '"forwards_m"')
+    (bad / "odometry.jsonl").write_text("\n".join(lines) + "\n")
+    r = run("traverse", bad, "--dem", dem, "-o", tmp_path / "o")
+    assert r.exit_code == 2
+    assert "odometry.jsonl line 2: 'forward_m' is missing" in r.output
+    assert not (tmp_path / "o" / "stops.jsonl").exists()
+    r = run("simulate-traverse", dem, "-o", tmp_path / "s", "--stop-conditions", "x=clouds")
+    assert r.exit_code == 2 and "STOP=CONDITIONS" in r.output
