@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -196,6 +197,7 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
             filt.predict(trav.odometry[k - 1])
             driven += trav.odometry[k - 1].distance_m
         kind = "position" if filt is None or _fix_due(driven, leg_m, filt, config, owed) else "heading"
+        t0 = time.perf_counter()
         update, conf, request, reason, nis, retried = "none", None, None, "", None, False
         measured = None
         try:
@@ -257,7 +259,8 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
         d = _record(k, name, filt, convergence, update=update, attempted=kind,
                     confidence=conf, nis=nis, retried=retried, reason=reason or None,
                     operator_request=request, measurement=meas, since_fix_m=driven,
-                    fix_owed=owed, misses_in_a_row=after)
+                    fix_owed=owed, misses_in_a_row=after,
+                    seconds=round(time.perf_counter() - t0, 3))
         _append(path, rows, d)
         misses = after
         if on_stop is not None:

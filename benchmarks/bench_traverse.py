@@ -1,0 +1,95 @@
+"""Traverses of 3 km with a stop every 50 m: heading error at every stop, position error after each
+leg's fix, odometry alone beside it, time per heading update and per leg-end fix.
+
+    python benchmarks/bench_traverse.py --dem ../shared/data/dem/south_glacier_20m.tif --out /tmp/tg
+    (--length-m, --spacing-m, --seed; --stop-conditions K=COND as in simulate-traverse)
+
+Simulates the traverse (skipped when OUT/traverse already holds one), runs ``skyfix traverse`` on
+it, and prints the figures against the truth. The images are rendered from the map DEM itself
+(pass --world-from with a refined DEM to change that): read the figures with that in mind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dem", required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--length-m", type=float, default=3000.0)
+    ap.add_argument("--spacing-m", type=float, default=50.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--stop-conditions", action="append", default=[])
+    ap.add_argument("--mode", default="frames")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    trav, res = out / "traverse", out / "result"
+    sky = [sys.executable, "-m", "skyfix.cli.main"]
+    load0 = os.getloadavg()[0]
+    if not (trav / "truth.jsonl").is_file():
+        cmd = sky + ["simulate-traverse", args.dem, "-o", str(trav), "--length-m", str(args.length_m),
+                     "--stop-spacing-m", str(args.spacing_m), "--seed", str(args.seed), "--mode", args.mode]
+        for c in args.stop_conditions:
+            cmd += ["--stop-conditions", c]
+        subprocess.run(cmd, check=True)
+    t0 = time.perf_counter()
+    proc = subprocess.run(sky + ["traverse", str(trav), "--dem", args.dem, "-o", str(res)],
+                          capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        print(proc.stderr)
+        raise SystemExit(proc.returncode)
+    from skyfix.dem import load_dem
+    from skyfix.north import meridian_convergence_deg
+    from skyfix.traverse import read_traverse
+    from skyfix.traverse.simulate import odometry_only
+
+    dem = load_dem(args.dem)
+    rows = [json.loads(line) for line in (res / "stops.jsonl").read_text().splitlines()]
+    t = read_traverse(trav)
+    truth = t.truth
+
+    def conv(x, y):
+        c = meridian_convergence_deg(dem.crs_wkt, x, y)
+        return c if math.isfinite(c) else 0.0
+
+    odo = odometry_only(t, conv)
+    he = np.array([abs((r["heading_deg"] - tr["heading_deg"] + 180) % 360 - 180) for r, tr in zip(rows, truth)])
+    pe = np.array([math.hypot(r["x"] - tr["x"], r["y"] - tr["y"]) for r, tr in zip(rows, truth)])
+    ohe = np.array([abs((o[2] + conv(o[0], o[1]) - tr["heading_deg"] + 180) % 360 - 180) for o, tr in zip(odo, truth)])
+    ope = np.array([math.hypot(o[0] - tr["x"], o[1] - tr["y"]) for o, tr in zip(odo, truth)])
+    fixes = [k for k, r in enumerate(rows) if r["update"] == "position"]
+    upd = [r["update"] for r in rows]
+    print(f"load average {load0:.2f} -> {os.getloadavg()[0]:.2f}; {Path(args.dem).name}, "
+          f"{len(rows)} stops over {args.length_m:g} m, seed {args.seed}; traverse wall {wall:.0f} s")
+    print(f"updates: {upd.count('heading')} heading, {upd.count('position')} position, "
+          f"{upd.count('rejected')} rejected, {upd.count('none')} none; operator requests at "
+          f"{[k for k, r in enumerate(rows) if r['operator_request']]}")
+    print(f"heading error: fused <= 1 deg at {np.mean(he <= 1):.0%} of stops (median {np.median(he):.3f}, "
+          f"max {he.max():.2f} deg); odometry alone at the end {ohe[-1]:.2f} deg")
+    print(f"position error: fused median {np.median(pe):.2f} m, max {pe.max():.2f} m, at the end "
+          f"{pe[-1]:.2f} m; odometry alone at the end {ope[-1]:.1f} m (max {ope.max():.1f} m)")
+    for kind in ("heading", "position"):
+        secs = [r["seconds"] for r in rows if r["attempted"] == kind]
+        if secs:
+            print(f"time per {kind} update: median {np.median(secs):.1f} s, max {max(secs):.1f} s "
+                  f"({len(secs)} stops, detection included)")
+    print("after each leg-end fix: " + ", ".join(f"stop {k}: {pe[k]:.2f} m" for k in fixes))
+    print("per stop (k, update, position error m, heading error deg, odometry-only error m):")
+    for k, r in enumerate(rows):
+        print(f"  {k:3d} {r['update']:9s} {pe[k]:7.2f} {he[k]:6.3f} {ope[k]:7.1f}")
+
+
+if __name__ == "__main__":
+    main()
