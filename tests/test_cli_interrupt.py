@@ -33,7 +33,7 @@ def test_ctrl_c_is_one_line_and_the_rerun_resumes_byte_for_byte(tmp_path):
     markers = out / "_skyfix" / "blocks"
     t0 = time.time()
     while time.time() - t0 < 120 and p.poll() is None:
-        if markers.is_dir() and len(list(markers.glob("*.json"))) >= 2:
+        if markers.is_dir() and len(list(markers.glob("*/zarr.json"))) >= 2:
             break
         time.sleep(0.2)
     assert p.poll() is None, "the build ended before it could be interrupted: make it bigger"

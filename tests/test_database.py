@@ -20,7 +20,7 @@ from click.testing import CliRunner
 
 from skyfix.cli.main import cli
 from skyfix.database import (MARKER_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG, Grid, build_database,
-                             open_database, quantise, verify_database)
+                             marker_name, open_database, quantise, verify_database)
 from skyfix.dem import Dem, file_checksum, load_dem, write_dem
 from skyfix.errors import DatabaseError, OutputExistsError, OutsideDemError, ParameterError
 from skyfix.horizon import render_horizons
@@ -152,6 +152,42 @@ def test_attributes_round_trip(dem_path, tmp_path):
     assert meta["dimension_names"] == ["y", "x", "azimuth"]
 
 
+def test_the_store_is_a_clean_zarr_hierarchy(clean_db):
+    """zarr opens the store and walks every node without calling anything unknown (the block
+    markers are groups whose attributes hold the checksums); the one warning left is zarr's
+    notice that the numcodecs delta and shuffle codecs are outside the v3 core spec."""
+    import warnings
+
+    import zarr
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        g = zarr.open_group(str(clean_db), mode="r")
+        names = sorted(k for k, _ in g.members(max_depth=None))
+        marker = g[f"{MARKER_DIR}/r0000_c0000"].attrs.asdict()
+        elev = g["elevation"][:2, :2]
+    msgs = [str(w.message) for w in caught]
+    assert not [m for m in msgs if "not recognized" in m], msgs
+    assert all("Numcodecs codecs" in m for m in msgs), msgs
+    assert "elevation" in names and f"{MARKER_DIR}/r0000_c0000" in names
+    assert marker["block"] == [0, 0] and set(marker["sha256"]) >= {"elevation"}
+    assert elev.shape[:2] == (2, 2)
+
+
+def test_a_store_with_the_older_marker_files_still_opens_and_verifies(clean_db, tmp_path):
+    """Stores built before markers were zarr groups hold rRRRR_cCCCC.json files: still read."""
+    import shutil
+
+    old = tmp_path / "old.zarr"
+    shutil.copytree(clean_db, old)
+    for mp in sorted((old / MARKER_DIR).glob("r*_c*/zarr.json")):
+        (mp.parent.parent / f"{mp.parent.name}.json").write_text(
+            json.dumps(json.loads(mp.read_text())["attributes"]))
+        shutil.rmtree(mp.parent)
+    assert open_database(old).n_blocks == open_database(clean_db).n_blocks
+    assert verify_database(old).ok
+
+
 def test_edge_bins_count_rays_that_hit_the_dem_edge(dem_path, tmp_path):
     # Without a distance limit every ray stops at the DEM edge; with a short one, none does.
     out = tmp_path / "short.zarr"
@@ -186,12 +222,12 @@ def test_killed_build_resumes_to_an_identical_store(dem_path, tmp_path):
     markers = out / MARKER_DIR
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None:
-        if markers.is_dir() and len(list(markers.glob("r*.json"))) >= 3:
+        if markers.is_dir() and len(list(markers.glob("r*/zarr.json"))) >= 3:
             break
         time.sleep(0.01)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    n_done = len(list(markers.glob("r*.json")))
+    n_done = len(list(markers.glob("r*/zarr.json")))
     assert 3 <= n_done < 30, f"the kill should land mid-build ({n_done} of 30 blocks done)"
     with pytest.raises(DatabaseError, match="incomplete"):
         open_database(out)
@@ -213,8 +249,8 @@ def test_resume_redoes_blocks_without_markers(dem_path, clean_db, tmp_path):
     shutil.copytree(clean_db, out)
     g = zarr.open_group(str(out), mode="r+")
     g["elevation"][8:16, 8:16] = 7  # half-written block: wrong data, then died before the marker
-    (out / MARKER_DIR / "r0001_c0001.json").unlink()
-    (out / MARKER_DIR / "r0002_c0000.json").unlink()
+    (out / MARKER_DIR / marker_name(1, 1)).unlink()
+    (out / MARKER_DIR / marker_name(2, 0)).unlink()
     (out / "elevation" / "c" / "1" / "1" / "0.abc.partial").write_bytes(b"junk")
     r = _build(dem_path, out)
     assert r.built == 2 and r.resumed_from == 7
@@ -239,7 +275,7 @@ def test_verify_passes_a_good_store_and_catches_corrupt_and_missing_blocks(dem_p
     chunk.write_bytes(bytes(data))
     g = zarr.open_group(str(bad), mode="r+")
     g["ground_z"][16:20, 16:24] = 0.0  # block (2, 2): valid chunk, wrong values
-    (bad / MARKER_DIR / "r0001_c0002.json").unlink()  # block (1, 2) missing
+    (bad / MARKER_DIR / marker_name(1, 2)).unlink()  # block (1, 2) missing
     rep = verify_database(bad, samples=0)
     assert rep.missing == [(1, 2)]
     assert [b for b, _ in rep.corrupt] == [(0, 1), (2, 2)]
@@ -267,11 +303,12 @@ def test_verify_sample_catches_a_store_that_disagrees_with_the_dem(dem_path, cle
     el = np.asarray(g["elevation"][:])
     k = 30  # every stored skyline raised by 30 quantisation steps = 0.3 deg
     g["elevation"][:] = np.where(el == MISSING, el, el + k).astype(el.dtype)
-    for mp in (bad / MARKER_DIR).glob("r*_c*.json"):  # re-sign the blocks: the checksums stay consistent
-        m = json.loads(mp.read_text())
+    for mp in (bad / MARKER_DIR).glob("r*_c*/zarr.json"):  # re-sign the blocks: the checksums stay consistent
+        doc = json.loads(mp.read_text())
+        m = doc["attributes"]
         blk = np.asarray(g["elevation"][m["row0"]:m["row0"] + m["rows"], m["col0"]:m["col0"] + m["cols"]])
         m["sha256"]["elevation"] = hashlib.sha256(np.ascontiguousarray(blk).tobytes()).hexdigest()
-        mp.write_text(json.dumps(m))
+        mp.write_text(json.dumps(doc))
     rep = verify_database(bad, dem=dem_path, samples=8)
     assert not rep.corrupt and not rep.missing  # past the block checksums and the DEM checksum
     assert not rep.ok and rep.samples == 8 and len(rep.sample_failures) == 8

@@ -20,7 +20,7 @@ from click.testing import CliRunner
 
 from skyfix.cli.main import cli
 from skyfix.database import (MARKER_DIR, Grid, build_database, check_build_size, describe,
-                             open_database, verify_database)
+                             marker_name, open_database, verify_database)
 from skyfix.dem import Dem, write_dem
 from skyfix.errors import DatabaseError, ParameterError
 from skyfix.match import MatchConfig, match_database
@@ -183,7 +183,7 @@ def test_spoiled_chunk_names_the_block_in_search_and_locate(clean_db, tmp_path, 
     data = chunk.read_bytes()
     chunk.write_bytes({"truncate": data[:len(data) // 2], "garbage": b"\x00junk" * 50, "empty": b""}[spoil])
     db = open_database(db_path)  # the file is there: only decoding it tells
-    says = r"block \(0, 1\) data unreadable \(elevation chunk: .*skyfix verify.*r0000_c0001.json"
+    says = r"block \(0, 1\) data unreadable \(elevation chunk: .*skyfix verify.*r0000_c0001/zarr.json"
     q = db.profiles_at(*db.xy_of(np.array([10]), np.array([12])))[0]
     for prefetch in (True, False):
         with pytest.raises(DatabaseError, match=says):
@@ -303,14 +303,14 @@ def test_verify_reports_skipped_and_clipped_samples(dem_path, clean_db, tmp_path
     with pytest.raises(ParameterError, match="samples must be"):
         verify_database(db_path, samples=2.5)
     # Damage still wins over a skipped sample: exit 2.
-    (db_path / MARKER_DIR / "r0000_c0000.json").unlink()
+    (db_path / MARKER_DIR / marker_name(0, 0)).unlink()
     assert _cli("verify", db_path).exit_code == 2
 
 
 def test_info_of_a_store_with_nothing_built(dem_path, clean_db, tmp_path):
     """A store whose first block never finished: no made-up bytes-per-skyline figure."""
     db_path = _copy(clean_db, tmp_path)
-    for m in (db_path / MARKER_DIR).glob("r*.json"):
+    for m in (db_path / MARKER_DIR).glob("r*/zarr.json"):
         m.unlink()
     res = _cli("info", db_path)
     assert res.exit_code == 0 and "0 of 9 blocks (INCOMPLETE" in res.output

@@ -46,7 +46,7 @@ def verify(ctx, db, dem, samples, seed):
         raise DatabaseError(f"{db} failed verification: {len(r.missing)} missing and {len(r.corrupt)} "
                             f"corrupt blocks, {len(r.sample_failures)} sample failures (rerun the build-db "
                             "command to rebuild missing blocks and blocks whose data files are gone; delete "
-                            "a corrupt block's marker, _skyfix/blocks/rRRRR_cCCCC.json, to rebuild it)")
+                            "a corrupt block's marker folder, _skyfix/blocks/rRRRR_cCCCC, to rebuild it)")
     if r.samples_skipped:
         click.echo("PARTIAL: every block intact, samples not re-rendered")
         ctx.exit(EXIT_SAMPLES_SKIPPED)

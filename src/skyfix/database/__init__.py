@@ -15,7 +15,7 @@ Arrays (``dimension_names`` in brackets)
 Blocks
     The grid is cut into blocks of ``block`` x ``block`` positions (64 x 64 by default), one zarr
     chunk of every array per block. A block is one build task: it renders its positions, writes
-    its chunks, then (atomically, after the data) a marker ``_skyfix/blocks/rRRRR_cCCCC.json``
+    its chunks, then (atomically, after the data) a marker ``_skyfix/blocks/rRRRR_cCCCC/zarr.json``
     holding the SHA-256 of the block's decoded arrays. A block without a marker is not built, so a
     build killed at any moment resumes by redoing exactly the blocks without markers, and
     :func:`verify_database` can tell an intact block from a corrupted one.
@@ -31,7 +31,7 @@ from .executors import InProcessExecutor, check_executor_options, default_worker
 from .integrity import done_blocks
 from .layout import (BLOCK, DATA_ARRAYS, FORMAT, FORMAT_VERSION, MARKER_DIR, MAX_BUILD_BYTES,
                      MAX_POSITIONS, META_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG, Grid, dequantise,
-                     quantise)
+                     marker_name, quantise, read_marker)
 from .store import Block, SkylineDatabase, open_database
 from .verify import VerifyReport, describe, verify_database
 
@@ -40,5 +40,5 @@ __all__ = ["BLOCK", "DATA_ARRAYS", "FORMAT", "FORMAT_VERSION", "MARKER_DIR", "MA
            "BuildResult", "Grid", "InProcessExecutor", "SkylineDatabase", "VerifyReport",
            "build_database", "build_params", "check_build_size", "check_executor_options",
            "default_workers", "describe", "dequantise", "dir_size", "done_blocks",
-           "estimate_build_bytes", "make_executor", "open_database", "quantise", "render_block",
-           "verify_database"]
+           "estimate_build_bytes", "make_executor", "marker_name", "open_database", "quantise",
+           "read_marker", "render_block", "verify_database"]

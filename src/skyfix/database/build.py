@@ -30,7 +30,7 @@ from .executors import check_executor_options, make_executor
 from .integrity import clean_partials, intact_blocks, root_state
 from .layout import (BLOCK, COMPRESSED_SHARE, FORMAT, FORMAT_VERSION, Grid, MARKER_DIR,
                      MAX_BUILD_BYTES, MAX_POSITIONS, META_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG,
-                     array_sha256, marker_name, quantise)
+                     array_sha256, marker_document, marker_name, quantise)
 
 
 log = logging.getLogger(__package__)  # messages name the stage, as before the split
@@ -117,7 +117,9 @@ def _build_block(spec: _BuildSpec, br: int, bc: int) -> tuple[int, int, int]:
     marker = {"block": [br, bc], "row0": rs.start, "col0": cs.start, "rows": rs.stop - rs.start,
               "cols": cs.stop - cs.start, "sha256": {k: array_sha256(v) for k, v in data.items()}}
     # Written only after every chunk is on disk: a block without a marker gets redone.
-    write_json(Path(spec.out) / MARKER_DIR / marker_name(br, bc), marker)
+    mp = Path(spec.out) / MARKER_DIR / marker_name(br, bc)
+    mp.parent.mkdir(parents=True, exist_ok=True)
+    write_json(mp, marker_document(marker))
     return br, bc, (rs.stop - rs.start) * (cs.stop - cs.start)
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DatabaseError
-from .layout import DATA_ARRAYS, FORMAT, Grid, MARKER_DIR, array_sha256, marker_name
+from .layout import DATA_ARRAYS, FORMAT, Grid, MARKER_DIR, array_sha256, read_marker
 
 
 def root_state(path: Path) -> tuple[str, dict | str | None]:
@@ -148,7 +148,7 @@ def absent_data(path: Path, g, grid: Grid, done) -> dict:
     # the block really was all fill (only conceivable for elevation: every ray without terrain).
     for (br, bc), names in list(absent.items()):
         try:
-            sha = json.loads((path / MARKER_DIR / marker_name(br, bc)).read_text())["sha256"]
+            sha = (read_marker(path, br, bc) or {})["sha256"]
         except (OSError, ValueError, KeyError, TypeError):
             sha = {}
         rs, cs = grid.block_slices(br, bc)
@@ -195,7 +195,9 @@ def done_blocks(path) -> set[tuple[int, int]]:
     if d.is_dir():
         for p in d.iterdir():
             n = p.name
-            if n.startswith("r") and n.endswith(".json") and "_c" in n:
+            # a group rRRRR_cCCCC/ with its zarr.json, or (older stores) a file rRRRR_cCCCC.json
+            done = (p / "zarr.json").is_file() if p.is_dir() else n.endswith(".json")
+            if done and n.startswith("r") and n[5:7] == "_c":
                 try:
                     out.add((int(n[1:5]), int(n[7:11])))
                 except ValueError:

@@ -168,5 +168,33 @@ def array_sha256(a: np.ndarray) -> str:
 
 
 def marker_name(br: int, bc: int) -> str:
-    """File name of block (row ``br``, column ``bc``)'s marker under ``MARKER_DIR``."""
+    """Path of block (row ``br``, column ``bc``)'s marker under ``MARKER_DIR``: the ``zarr.json``
+    of a zarr group whose attributes are the marker, so the store stays a clean zarr hierarchy
+    (a bare ``rRRRR_cCCCC.json`` made ``zarr.open`` warn of an unknown object)."""
+    return f"r{br:04d}_c{bc:04d}/zarr.json"
+
+
+def legacy_marker_name(br: int, bc: int) -> str:
+    """The marker's path in stores built before markers were zarr groups (still read)."""
     return f"r{br:04d}_c{bc:04d}.json"
+
+
+def marker_document(marker: dict) -> dict:
+    """The ``zarr.json`` that holds ``marker`` as a group's attributes."""
+    return {"zarr_format": 3, "node_type": "group", "attributes": marker}
+
+
+def read_marker(store, br: int, bc: int) -> dict | None:
+    """Block (br, bc)'s marker in the database folder ``store`` (either layout), None if absent.
+    Raises ``OSError`` or ``ValueError`` when it exists but cannot be read."""
+    import json
+    from pathlib import Path
+
+    d = Path(store) / MARKER_DIR
+    p = d / marker_name(br, bc)
+    if p.is_file():
+        return json.loads(p.read_text())["attributes"]
+    old = d / legacy_marker_name(br, bc)
+    if old.is_file():
+        return json.loads(old.read_text())
+    return None

@@ -4,7 +4,6 @@ re-rendered from the DEM) and describing it (:func:`describe`, for ``skyfix info
 
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -16,7 +15,7 @@ from ..errors import ParameterError
 from .build import dir_size
 from .executors import is_whole_at_least_0
 from .integrity import data_missing_message
-from .layout import DATA_ARRAYS, MARKER_DIR, SKIP_TOL_DEG, array_sha256, marker_name
+from .layout import DATA_ARRAYS, SKIP_TOL_DEG, array_sha256, read_marker
 from .store import open_database
 
 
@@ -66,11 +65,14 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
     samples = int(samples)
     db = open_database(path, allow_incomplete=True)
     rep = VerifyReport(Path(path), db.n_blocks, samples_requested=samples)
-    markers = Path(path) / MARKER_DIR
     good = []
     for br, bc in db.grid.blocks():
-        mp = markers / marker_name(br, bc)
-        if not mp.exists():
+        try:
+            marker = read_marker(path, br, bc)
+        except (OSError, ValueError, KeyError) as e:
+            rep.corrupt.append(((br, bc), f"marker unreadable: {type(e).__name__}: {e}"))
+            continue
+        if marker is None:
             rep.missing.append((br, bc))
             continue
         gone = db._absent.get((br, bc))
@@ -78,7 +80,6 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
             rep.corrupt.append(((br, bc), f"data missing: no chunk file for {', '.join(gone)}"))
             continue
         try:
-            marker = json.loads(mp.read_text())
             got = {name: db._read_unchecked(name, br, bc) for name in DATA_ARRAYS}
             bad = [k for k, v in got.items() if array_sha256(v) != marker["sha256"].get(k)]
         except Exception as e:  # a damaged chunk fails to decode (zstd checksum) in many ways
