@@ -9,7 +9,9 @@ import click
 @click.argument("dem", type=click.Path(dir_okay=False))
 @click.option("--out", "-o", required=True, type=click.Path(), help="Output zarr store (a folder).")
 @click.option("--bounds", nargs=4, type=float, required=True, metavar="XMIN YMIN XMAX YMAX",
-              help="Search area [m] in the DEM's CRS; positions at xmin + c*spacing, ymax - r*spacing.")
+              help="Search area [m] in the work CRS (`skyfix info DEM` prints it: the DEM's own when "
+                   "projected, else a transverse Mercator on its body); positions at "
+                   "xmin + c*spacing, ymax - r*spacing.")
 @click.option("--spacing-m", type=float, required=True, help="Grid spacing [m].")
 @click.option("--camera-height-m", type=float, default=1.5, show_default=True, help="[m] above ground.")
 @click.option("--azimuth-bins", type=int, default=360, show_default=True, help="Bins over 360 deg.")

@@ -192,7 +192,10 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
 @click.option("--plot", type=click.Path(dir_okay=False),
               help="Score map and skyline overlay (.png, .jpg, .pdf or .svg).")
 @click.option("--preset", type=click.Choice(["fast", "exact", "level"]), default="fast",
-              show_default=True, help="Matcher preset.")
+              show_default=True,
+              help="Database search: fast (a coarse pass on 4-bin averages, then the best share "
+                   "exactly), exact (every position scored exactly: slower, for checks), level "
+                   "(no tilt harmonic: a camera known to be level, or a narrow view).")
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
 @click.option("--force", is_flag=True,
               help="Use a --dem other than the one the database was built from (the fix says so).")
