@@ -44,7 +44,23 @@ def test_tables_count_what_they_say(tmp_path):
     assert back[1].position_error_m == pytest.approx(20.0)
     page = write_report_html(tmp_path, title="t", intro="i", sections=[("s", "<p>x</p>")], figures=[],
                              command="skyfix evaluate")
-    assert "skyfix evaluate" in page.read_text()
+    from skyfix import __version__
+
+    assert "skyfix evaluate" in page.read_text() and f"skyfix {__version__}" in page.read_text()
+
+
+def test_report_headers_and_cases_read_as_words():
+    from skyfix.report import case_rows, figure_caption, format_table, header_label
+
+    assert header_label("head_err_med_deg") == "heading error median [deg]"
+    assert header_label("correct_if_conf_ge_0.9_pct") == "correct if confidence >= 0.9 [%]"
+    assert header_label("cases") == "cases"
+    rows = case_rows([_case("REF", 3.0, 1.5, 0.9), _case("REF", 6.0, 0.0, 0.2)])
+    assert [r["correct"] for r in rows] == ["yes", "no"]
+    assert rows[0]["position_error_m"] == pytest.approx(3.0)
+    page = format_table(rows, "html")
+    assert "<th>position error [m]</th>" in page and "position_error_m" not in page
+    assert figure_caption("overlay_REF_case_001.png").endswith("(REF case 001)")
 
 
 def test_heading_vs_prior_groups_by_offset():

@@ -21,7 +21,8 @@ _SHARED_CANDIDATES = (Path.cwd().parent / "shared" / "data" / "dem" / "sierra_ne
 
 #: what a demo run writes into its folder; nothing else is ever replaced without --overwrite
 DEMO_OUTPUTS = frozenset({"skylines.zarr", "acquisition", "fix.json", "summary.json",
-                          "skyline_overlay.png", "generated_dem.tif"})
+                          "skyline_overlay.png", "fix_map.png", "frame_skyline.png",
+                          "generated_dem.tif"})
 #: written first into a folder the demo creates or finds empty, so a rerun knows the folder is its own
 DEMO_MARKER = ".skyfix-demo"
 
@@ -146,12 +147,33 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
     overlay = plot_skyline_overlay(out / "skyline_overlay.png", res, profile, dem,
                                    EvalConfig(scenario=1), prior_pitch_deg=acq.prior_pitch_deg,
                                    prior_roll_deg=acq.prior_roll_deg)
+    from .detect import detect_skyline
+    from .figures import plot_fix_map, plot_frame_skyline
+    from .profile.frames import read_rgb
+
+    fix_map = plot_fix_map(out / "fix_map.png", fix, dem, area=bounds, truth=(truth.x, truth.y))
+    # the first frame whose skyline spans most of its width (frame 0 may look at a near slope)
+    best = None
+    for frame in acq.frames:
+        rgb = read_rgb(acq.root / frame.image)
+        sky = detect_skyline(rgb)
+        share = float(np.mean(np.isfinite(np.asarray(sky.rows, float))))
+        if best is None or share > best[0]:
+            best = (share, frame, rgb, sky)
+        if share >= 0.9:
+            break
+    _, frame, rgb, sky = best
+    frame_fig = plot_frame_skyline(out / "frame_skyline.png", rgb, sky,
+                                   title=f"{frame.image}: pan {frame.pan_deg:.0f} deg, tilt "
+                                         f"{frame.tilt_deg:.0f} deg, detected skyline")
     summary = {
         "fix": fix.to_dict(),
         "truth": {"x": truth.x, "y": truth.y, "yaw_deg": truth.yaw_deg, "pitch_deg": truth.pitch_deg,
                   "roll_deg": truth.roll_deg},
         "position_error_m": res.position_error_m, "heading_error_deg": res.heading_error_deg,
-        "timings_s": timings, "files": [str(out / "fix.json"), str(overlay), str(db_path), str(acq_dir)],
+        "timings_s": timings,
+        "files": [str(out / "fix.json"), str(overlay), str(fix_map), str(frame_fig), str(db_path),
+                  str(acq_dir)],
     }
     write_json(out / "summary.json", summary)
     say(f"fix: x {fix.x:.1f} m, y {fix.y:.1f} m ({fix.crs}), heading {fix.heading_deg:.2f} deg from "
@@ -161,5 +183,6 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
     say(f"truth: x {truth.x:.1f} m, y {truth.y:.1f} m, heading {truth_heading:.2f} deg from true north "
         f"-> position error {res.position_error_m:.2f} m, heading error {res.heading_error_deg:.2f} deg")
     say("times: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in timings.items()))
-    say(f"wrote {out / 'fix.json'}, {overlay}, {out / 'summary.json'}")
+    say(f"wrote {out / 'fix.json'}, {out / 'summary.json'} and the figures {overlay.name}, "
+        f"{fix_map.name}, {frame_fig.name}")
     return summary

@@ -251,9 +251,9 @@ def calibration_row(res: CaseResult, features: dict, dem) -> dict:
 
 
 def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command: str) -> Path:
-    from .report import (format_table, heading_vs_prior_rows, plot_error_cdfs, plot_reliability,
-                         reliability_rows, summary_rows, timing_rows, write_report_html,
-                         write_results_csv)
+    from .report import (case_rows, format_table, heading_vs_prior_rows, plot_error_cdfs,
+                         plot_reliability, reliability_rows, summary_rows, timing_rows,
+                         write_report_html, write_results_csv)
 
     write_results_csv(results, out / "results.csv")
     tables = [("Results per set", summary_rows(results))]
@@ -284,7 +284,8 @@ def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command
         intro += (" DIAGNOSIS RUN: detection was bypassed with the simulator's exact skylines; these "
                   "numbers measure projection and localisation only, not the whole pipeline.")
     return write_report_html(out, title=f"skyfix evaluation: scenario {cfg.scenario}", intro=intro,
-                             sections=[(h, format_table(rows, "html")) for h, rows in tables],
+                             sections=[(h, format_table(rows, "html")) for h, rows in tables]
+                             + [("Every case", format_table(case_rows(results), "html"))],
                              figures=figs, command=command)
 
 
@@ -326,7 +327,7 @@ def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig, *
     ax.set_ylabel("elevation [deg]")
     ax.set_title(f"{res.set} {res.case}: position error {res.position_error_m:.2f} m, heading error "
                  f"{res.heading_error_deg:.2f} deg, confidence {res.confidence:.2f}", fontsize=9)
-    ax.legend(fontsize=7, loc="upper right")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     fig.tight_layout()
     return save_figure(fig, path)
 

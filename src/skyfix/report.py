@@ -183,8 +183,60 @@ def reliability_rows(results: list[CaseResult], edges=(0.0, 0.3, 0.5, 0.7, 0.9, 
     return rows
 
 
+#: units written as the last word of a column name, and how a reader sees them
+_UNITS = {"m": "m", "deg": "deg", "s": "s", "pct": "%", "mb": "MB", "px": "px"}
+
+
+#: abbreviations of the tables' column names, spelled out
+_WORDS = {"ge": ">=", "le": "<=", "med": "median", "conf": "confidence", "err": "error",
+          "head": "heading", "pos": "position", "pct": "%"}
+
+
+def header_label(name: str) -> str:
+    """A column name as a person reads it: ``head_err_med_deg`` -> ``heading error median [deg]``,
+    ``correct_if_conf_ge_0.9_pct`` -> ``correct if confidence >= 0.9 [%]``."""
+    words = str(name).split("_")
+    unit = _UNITS.get(words[-1].lower()) if len(words) > 1 else None
+    if unit:
+        words = words[:-1]
+    text = " ".join(_WORDS.get(w, w) for w in words)
+    return f"{text} [{unit}]" if unit else text
+
+
+def case_rows(results: list[CaseResult]) -> list[dict]:
+    """One row per case: what was found, how far from the truth, how sure."""
+    rows = []
+    for r in results:
+        rows.append({"set": r.set, "case": r.case, "status": r.status,
+                     "position_error_m": r.position_error_m if r.scenario != 3 else math.nan,
+                     "heading_error_deg": r.heading_error_deg, "confidence": r.confidence,
+                     "position_sigma_m": r.position_sigma_m, "heading_sigma_deg": r.heading_sigma_deg,
+                     "correct": "yes" if r.correct else "no"})
+    return rows
+
+
+#: figure file name prefix -> caption
+FIGURE_CAPTIONS = {
+    "error_cdf": "Cumulative share of cases against the position and heading error, per set.",
+    "reliability": "Confidence reliability: the share of correct fixes per confidence bin "
+                   "(on the diagonal when the confidence is calibrated).",
+    "overlay": "A case's measured profile (detected skyline) over the DEM's skyline at the fix "
+               "and at the truth.",
+}
+
+
+def figure_caption(path) -> str:
+    stem = Path(path).stem
+    for prefix, text in FIGURE_CAPTIONS.items():
+        if stem.startswith(prefix):
+            extra = stem[len(prefix):].strip("_").replace("_", " ")
+            return f"{text} ({extra})" if extra else text
+    return stem.replace("_", " ")
+
+
 def format_table(rows: list[dict], fmt: str = "text") -> str:
-    """Rows of dicts as an aligned text table, Markdown, or HTML."""
+    """Rows of dicts as an aligned text table, Markdown, or HTML (HTML headers as a person reads
+    them: :func:`header_label`)."""
     if not rows:
         return ""
     cols = list(rows[0])
@@ -196,7 +248,7 @@ def format_table(rows: list[dict], fmt: str = "text") -> str:
 
     body = [[cell(r[c]) for c in cols] for r in rows]
     if fmt == "html":
-        head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
+        head = "".join(f"<th>{html.escape(header_label(c))}</th>" for c in cols)
         trs = "".join("<tr>" + "".join(f"<td>{html.escape(v)}</td>" for v in b) + "</tr>" for b in body)
         return f"<table><thead><tr>{head}</tr></thead><tbody>{trs}</tbody></table>"
     if fmt == "markdown":
@@ -224,7 +276,7 @@ def pyplot():
 def save_figure(fig, path) -> Path:
     """Write ``fig`` as PNG to ``path`` atomically (110 dpi) and close it."""
     with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+        fig.savefig(tmp, dpi=110, format="png", bbox_inches="tight")  # legends sit outside the axes
     pyplot().close(fig)
     return Path(path)
 
@@ -246,7 +298,7 @@ def plot_error_cdfs(results: list[CaseResult], path, scenario: int) -> Path:
     ax.set_xlabel("heading error [deg]" if scenario == 3 else "position error [m]")
     ax.set_ylabel("share of cases")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     ax.set_title(f"scenario {scenario}: error CDF per set")
     fig.tight_layout()
     return save_figure(fig, path)
@@ -268,7 +320,7 @@ def plot_reliability(results: list[CaseResult], path) -> Path:
     ax.set_ylim(0, 1.02)
     ax.set_xlabel("stated confidence")
     ax.set_ylabel("observed share correct")
-    ax.legend(fontsize=8, loc="upper left")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     ax.set_title("confidence reliability (cases per bin)")
     fig.tight_layout()
     return save_figure(fig, path)
@@ -294,22 +346,25 @@ def timing_rows(results: list[CaseResult], scenario: int) -> list[dict]:
 def _img(path: Path, root: Path) -> str:
     data = base64.b64encode(path.read_bytes()).decode()
     rel = html.escape(str(path.relative_to(root)))
-    return (f'<figure><a href="{rel}"><img src="data:image/png;base64,{data}" alt="{rel}"></a>'
-            f"<figcaption>{rel}</figcaption></figure>")
+    cap = html.escape(figure_caption(path))
+    return (f'<figure><a href="{rel}"><img src="data:image/png;base64,{data}" alt="{cap}"></a>'
+            f"<figcaption>{cap}</figcaption></figure>")
 
 
 def write_report_html(out_dir, *, title: str, intro: str, sections: list[tuple[str, str]],
                       figures: list[Path], command: str) -> Path:
     """One self-contained HTML page (figures embedded, and linked to their PNG files)."""
+    from . import __version__
+
     out_dir = Path(out_dir)
     parts = [f"<h2>{html.escape(h)}</h2>{body}" for h, body in sections]
     figs = "".join(_img(Path(p), out_dir) for p in figures if Path(p).exists())
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}}
 table{{border-collapse:collapse;margin:1em 0;font-size:13px}}th,td{{border:1px solid #ccc;padding:3px 7px;text-align:right}}
-th{{background:#f3f3f3}}figure{{display:inline-block;margin:.5em;vertical-align:top}}img{{max-width:520px}}
+th{{background:#f3f3f3}}figure{{display:inline-block;margin:.5em;vertical-align:top;max-width:100%}}img{{max-width:100%;max-height:640px}}
 figcaption{{font-size:11px;color:#666}}code{{background:#f5f5f5;padding:1px 4px}}</style></head><body>
-<h1>{html.escape(title)}</h1><p>{intro}</p><p>Regenerate with <code>{html.escape(command)}</code>.</p>
+<h1>{html.escape(title)}</h1><p>{intro}</p><p>skyfix {html.escape(__version__)}. Regenerate with <code>{html.escape(command)}</code>.</p>
 {''.join(parts)}<h2>Figures</h2>{figs}</body></html>"""
     path = out_dir / "report.html"
     with atomic_path(path, suffix=".html") as tmp:

@@ -82,6 +82,8 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
                         convergence=convergence, on_stop=progress)
     write_track(Path(out), rows, dem.crs_wkt)
     if not no_plot:
+        from ..figures import plot_track
+
         plot_track(Path(out) / "track.png", rows, trav, dem, convergence)
     asked = sum(r["operator_request"] is not None for r in rows)
     click.echo(f"{len(rows)} stops: {sum(r['update'] == 'heading' for r in rows)} heading and "
@@ -107,56 +109,6 @@ def write_track(out, rows, crs_wkt) -> None:
     track = {"type": "Feature", "geometry": {"type": "LineString", "coordinates": line},
              "properties": {"name": "fused track", "stops": len(rows)}}
     write_json(out / "track.geojson", {"type": "FeatureCollection", "features": [track] + feats})
-
-
-def plot_track(path, rows, trav, dem, convergence) -> None:
-    """The track over a hillshade of the DEM around it: truth (when known), odometry alone, fused;
-    the stops where the operator was asked marked."""
-    import numpy as np
-
-    from .._io import save_figure
-    from ..report import pyplot
-    from ..traverse.simulate import odometry_only
-
-    plt = pyplot()
-    dem = getattr(dem, "members", [dem])[0]  # a stack: its finest DEM for the hillshade
-    xs = np.array([r["x"] for r in rows])
-    ys = np.array([r["y"] for r in rows])
-    pad = 300.0
-    x0, x1, y0, y1 = xs.min() - pad, xs.max() + pad, ys.min() - pad, ys.max() + pad
-    fig, ax = plt.subplots(figsize=(7, 7))
-    c0 = max(int((x0 - dem.x0) / dem.cell_m), 0)
-    c1 = min(int((x1 - dem.x0) / dem.cell_m) + 1, dem.shape[1])
-    r0 = max(int((dem.y0 - y1) / dem.cell_m), 0)
-    r1 = min(int((dem.y0 - y0) / dem.cell_m) + 1, dem.shape[0])
-    z = np.asarray(dem.z[r0:r1, c0:c1], float)
-    if z.size > 4:
-        gy, gx = np.gradient(np.nan_to_num(z, nan=np.nanmean(z)), dem.cell_m)
-        shade = (np.cos(np.radians(45)) * 1 / np.sqrt(1 + gx ** 2 + gy ** 2)
-                 + np.sin(np.radians(45)) * (-gx + gy) / np.sqrt(2) / np.sqrt(1 + gx ** 2 + gy ** 2))
-        ax.imshow(shade, cmap="gray", extent=(dem.x0 + c0 * dem.cell_m, dem.x0 + c1 * dem.cell_m,
-                                              dem.y0 - r1 * dem.cell_m, dem.y0 - r0 * dem.cell_m),
-                  alpha=0.6)
-    if trav.truth:
-        ax.plot([t["x"] for t in trav.truth], [t["y"] for t in trav.truth], "k-", lw=2, label="truth")
-    if trav.start is not None:
-        od = np.array(odometry_only(trav, convergence))
-        ax.plot(od[: len(rows), 0], od[: len(rows), 1], "--", color="tab:orange", label="odometry alone")
-    ax.plot(xs, ys, "-", color="tab:blue", lw=1.5, label="fused")
-    fix = [k for k, r in enumerate(rows) if r["update"] == "position"]
-    ax.plot(xs[fix], ys[fix], "o", color="tab:green", ms=6, label="position fix")
-    ask = [k for k, r in enumerate(rows) if r["operator_request"]]
-    if ask:
-        ax.plot(xs[ask], ys[ask], "x", color="tab:red", ms=10, mew=2, label="operator request")
-    ax.set_xlim(x0, x1)
-    ax.set_ylim(y0, y1)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"traverse of {len(rows)} stops")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
-    save_figure(fig, path, bbox_inches="tight")
-    plt.close(fig)
 
 
 @click.command("simulate-traverse")
