@@ -37,7 +37,7 @@ def test_a_simulated_traverse_is_fused_within_the_truth(simulated, tmp_path):
     for r_ in rows:
         assert {"stop", "x", "y", "heading_deg", "position_sigma_m", "heading_sigma_deg", "update",
                 "confidence", "operator_request"} <= set(r_)
-    assert [r_["update"] for r_ in rows] == ["heading", "heading", "position", "heading"]
+    assert [r_["update"] for r_ in rows] == ["heading", "heading", "position", "position"]  # leg, end
     for r_, t in zip(rows, truth):  # measured: heading errors <= 0.07 deg, positions <= 3 m
         assert abs((r_["heading_deg"] - t["heading_deg"] + 180) % 360 - 180) < 0.5
         assert math.hypot(r_["x"] - t["x"], r_["y"] - t["y"]) < 3 * max(r_["position_sigma_m"], 1.0)

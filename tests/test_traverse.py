@@ -109,7 +109,7 @@ def test_headings_at_every_stop_and_a_fix_at_each_legs_end(tmp_path):
     rows = run_traverse(trav, m, tmp_path)
     kinds = [r["update"] for r in rows]
     assert kinds[0] == "heading"
-    assert [k for k, u in enumerate(kinds) if u == "position"] == [10, 20]  # every 500 m
+    assert [k for k, u in enumerate(kinds) if u == "position"] == [10, 20, 22]  # every 500 m, the end
     assert all(u in ("heading", "position") for u in kinds)
     assert all(r["operator_request"] is None for r in rows)
     assert max(abs(r["x"]) for r in rows) < 3.0 and rows[-1]["heading_sigma_deg"] < 0.2

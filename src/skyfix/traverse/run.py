@@ -5,7 +5,8 @@ Per stop (the rover's activity diagram in the source study):
 
 1. predict with the odometry from the previous stop;
 2. decide the update: a position fix (``locate`` in a disc of 3 sigma about the prediction) at the
-   end of a leg (``leg_length_m`` driven since the last accepted fix), when the position sigma has
+   end of a leg (``leg_length_m`` driven since the last accepted fix, to within 3 %; the
+   traverse's last stop ends the last leg), when the position sigma has
    grown past what the heading mode tolerates (``max_position_sigma_m``), or while an earlier
    fix is still owed; else a heading (``heading`` at the predicted position in a window of
    ``max(heading_window_deg, 3 sigma)`` about the predicted heading);
@@ -89,8 +90,12 @@ class Measure:
     fix: Callable
 
 
-def _fix_due(driven_m, leg_m, filt, cfg, owed) -> bool:
-    return owed or driven_m >= leg_m - 1e-6 or filt.position_sigma_m > cfg.max_position_sigma_m
+def _fix_due(driven_m, leg_m, filt, cfg, owed, last) -> bool:
+    # a leg ends where the odometry says it has driven the leg's length, to within the odometry's
+    # own few per cent (else a 1000 m leg measured as 998 m waits one more stop); the traverse's
+    # last stop ends the last leg
+    return (owed or last or driven_m >= 0.97 * leg_m
+            or filt.position_sigma_m > cfg.max_position_sigma_m)
 
 
 def _attempt_heading(measure, k, filt, cfg):
@@ -196,7 +201,9 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
         else:
             filt.predict(trav.odometry[k - 1])
             driven += trav.odometry[k - 1].distance_m
-        kind = "position" if filt is None or _fix_due(driven, leg_m, filt, config, owed) else "heading"
+        last = k == len(trav.stops) - 1 and k > 0
+        kind = ("position" if filt is None or _fix_due(driven, leg_m, filt, config, owed, last)
+                else "heading")
         t0 = time.perf_counter()
         update, conf, request, reason, nis, retried = "none", None, None, "", None, False
         measured = None
