@@ -68,3 +68,21 @@ def test_a_malformed_traverse_is_refused_before_any_stop(simulated, tmp_path):
     assert not (tmp_path / "o" / "stops.jsonl").exists()
     r = run("simulate-traverse", dem, "-o", tmp_path / "s", "--stop-conditions", "x=clouds")
     assert r.exit_code == 2 and "STOP=CONDITIONS" in r.output
+
+
+def test_evaluate_traverse_reports_fused_against_odometry(tmp_path):
+    dem = shared_dem_path("south_glacier_20m")
+    out = tmp_path / "ev"
+    r = run("evaluate", "--dem", dem, "--scenario", "traverse", "--length-m", 100,
+            "--stop-spacing-m", 50, "--seed", 5, "--stop-conditions", "1=overexposed:1", "-o", out)
+    assert r.exit_code == 0, r.output
+    page = (out / "report.html").read_text()
+    assert "Every stop" in page and "odometry alone error [m]" in page
+    assert (out / "errors.png").stat().st_size > 10_000 and (out / "track.png").is_file()
+    rows = [json.loads(line) for line in (out / "result" / "stops.jsonl").read_text().splitlines()]
+    truth = [json.loads(line) for line in (out / "traverse" / "truth.jsonl").read_text().splitlines()]
+    # whatever the overexposed stop gave, nothing wrong was taken; the last stop ends the leg
+    for r_, t in zip(rows, truth):
+        if r_["update"] in ("heading", "position"):
+            assert abs((r_["heading_deg"] - t["heading_deg"] + 180) % 360 - 180) < 1.0
+    assert rows[2]["update"] == "position"

@@ -217,6 +217,9 @@ def case_rows(results: list[CaseResult]) -> list[dict]:
 
 #: figure file name prefix -> caption
 FIGURE_CAPTIONS = {
+    "track": "The traverse over a hillshade: truth, odometry alone, the fused track, its position "
+             "fixes and any operator requests.",
+    "errors": "Position and heading error against the distance driven: fused, and odometry alone.",
     "error_cdf": "Cumulative share of cases against the position and heading error, per set.",
     "reliability": "Confidence reliability: the share of correct fixes per confidence bin "
                    "(on the diagonal when the confidence is calibrated).",

@@ -13,8 +13,10 @@ from .options import overwrite_option
 
 @click.command()
 @click.option("--dem", "dem_path", required=True, type=click.Path(dir_okay=False), help="DEM GeoTIFF.")
-@click.option("--scenario", type=click.IntRange(1, 3), required=True,
-              help="1: 7x7 km database search; 2: 40x40 m prior, DEM only; 3: heading only.")
+@click.option("--scenario", type=click.Choice(["1", "2", "3", "traverse"]), required=True,
+              help="1: 7x7 km database search; 2: 40x40 m prior, DEM only; 3: heading only; "
+                   "traverse: a simulated traverse fused with odometry (--length-m, --stop-spacing-m, "
+                   "--stop-conditions).")
 @click.option("--sets", default="REF", show_default=True,
               help="Comma-separated robustness sets: REF,HREL,SCOM,LREL,CLUT,OCCL,COND,DEMERR.")
 @click.option("--cases", type=int, default=10, show_default=True, help="Cases per set.")
@@ -34,22 +36,44 @@ from .options import overwrite_option
                    "position errors are then counted beyond the simulated misregistration.")
 @click.option("--dem-sigma-m", type=float, default=None,
               help="The DEM's height error [m] the localiser allows for (PoseConfig.dem_sigma_m).")
+@click.option("--length-m", type=float, default=3000.0, show_default=True,
+              help="Traverse scenario: path length [m].")
+@click.option("--stop-spacing-m", type=float, default=50.0, show_default=True,
+              help="Traverse scenario: between stops [m].")
+@click.option("--stop-conditions", multiple=True, metavar="STOP=CONDITIONS",
+              help="Traverse scenario: conditions at one stop, e.g. 12=clouds:1 (repeatable).")
 @click.option("-o", "--out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @overwrite_option
 def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height_m, tilt_deg, skylines,
-             map_errors, dem_sigma_m, out, overwrite):
+             map_errors, dem_sigma_m, length_m, stop_spacing_m, stop_conditions, out, overwrite):
     """Simulate cases, run the board pipeline, and write results.csv, tables, figures and
     report.html to OUT."""
     from ..evaluate import EvalConfig
     from ..evaluate import evaluate as run
     from .._io import writing_to
 
+    args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
+    if scenario == "traverse":
+        from ..errors import ParameterError
+        from ..traverse.evaluation import evaluate_traverse
+        from ..traverse.simulate import parse_stop_conditions
+
+        if seed < 0:
+            raise ParameterError(f"--seed must be >= 0, got {seed}")
+        conds = parse_stop_conditions(stop_conditions)
+        with writing_to(out):
+            report = evaluate_traverse(dem_path, out, length_m=length_m, stop_spacing_m=stop_spacing_m,
+                                       seed=seed, stop_conditions=conds,
+                                       command="skyfix evaluate " + " ".join(shlex.quote(a) for a in args))
+        click.echo(f"wrote {report}")
+        return
+    scenario = int(scenario)
+
     cfg = EvalConfig(scenario=scenario, sets=tuple(s.strip().upper() for s in sets.split(",") if s.strip()),
                      cases=cases, seed=seed, area=tuple(area) if area else None,
                      camera_height_m=camera_height_m, skylines=skylines,
                      tilt_deg=tilt_deg, map_errors=map_errors, dem_sigma_m=dem_sigma_m)
     # The command that regenerates the report, as typed (for the report's own footer).
-    args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
     command = "skyfix evaluate " + " ".join(shlex.quote(a) for a in args)
     with writing_to(out):
         report = run(dem_path, cfg, out, db_path=db_path, overwrite=overwrite, command=command)
