@@ -29,15 +29,16 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DEM = os.path.join(ROOT, "..", "shared", "data", "dem", "sierra_nevada_30m.tif")
 
 
-def cases(dem, n, seed):
+def cases(dem, n, seed, prior_sigma_deg=0.3, heading_offset_deg=8.0):
     rng = np.random.default_rng(seed)
     x0, y0, x1, y1 = dem.bounds
     m = 0.3 * min(x1 - x0, y1 - y0)
     for _ in range(n):
         yield dict(x=float(rng.uniform(x0 + m, x1 - m)), y=float(rng.uniform(y0 + m, y1 - m)),
                    yaw=float(rng.uniform(0, 360)), pitch=float(rng.normal(0, 3)),
-                   roll=float(rng.normal(0, 3)), dpp=float(rng.normal(0, 0.3)),
-                   dpr=float(rng.normal(0, 0.3)), dh=float(rng.uniform(-8, 8)),
+                   roll=float(rng.normal(0, 3)), dpp=float(rng.normal(0, prior_sigma_deg)),
+                   dpr=float(rng.normal(0, prior_sigma_deg)),
+                   dh=float(rng.uniform(-heading_offset_deg, heading_offset_deg)),
                    start=float(rng.uniform(0, 360)), noise=rng.normal(0, 0.05, 360))
 
 
@@ -48,17 +49,23 @@ def main(argv=None):
     ap.add_argument("--arcs", default="50,90,360", help="arc widths [deg]")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--map-is-world", action="store_true", help="render the images from the map DEM")
+    ap.add_argument("--prior-sigma-deg", type=float, default=0.3,
+                    help="1-sigma error of the pitch/roll prior [deg] (NASA Ames INS: ~5)")
+    ap.add_argument("--heading-offset-deg", type=float, default=8.0,
+                    help="heading prior off by U(-this, this) [deg]")
     args = ap.parse_args(argv)
     dem = load_dem(args.dem)
     world = dem if args.map_is_world else world_dem(dem, MapErrors(), seed=args.seed)
     print(f"load average {os.getloadavg()[0]:.2f}; DEM {os.path.basename(args.dem)}; "
           f"world {'= map' if args.map_is_world else 'DEMERR (map refined, errors, shift)'}")
-    cs = list(cases(dem, args.cases, args.seed))
+    cs = list(cases(dem, args.cases, args.seed, args.prior_sigma_deg, args.heading_offset_deg))
     horizons = render_horizons(world, [c["x"] for c in cs], [c["y"] for c in cs],
                                azimuth_bins=1440).elevation_deg
-    print("arc_deg  within_1deg  median_err_deg  conf>=0.9_right  mean_s")
+    print(f"pitch/roll prior sigma {args.prior_sigma_deg} deg, heading prior within "
+          f"+-{args.heading_offset_deg} deg")
+    print("arc_deg  within_1deg  median_err_deg  conf>=0.9_right  mean_s  pitch/roll_within_0.5deg")
     for arc in [float(a) for a in args.arcs.split(",")]:
-        errs, confs, secs = [], [], []
+        errs, confs, secs, tilt_ok = [], [], [], []
         for c, w in zip(cs, horizons):
             pp, pr = c["pitch"] + c["dpp"], c["roll"] + c["dpr"]
             q = body_profile(w, c["yaw"], c["pitch"], c["roll"], n_bins=360,
@@ -73,8 +80,10 @@ def main(argv=None):
                                       prior_pitch_deg=pp, prior_roll_deg=pr)
                 err = abs((hf.grid_heading_deg - c["yaw"] + 180) % 360 - 180)
                 conf = hf.confidence
+                tilt_ok.append(abs(hf.pitch_deg - c["pitch"]) <= 0.5 and abs(hf.roll_deg - c["roll"]) <= 0.5)
             except Exception as e:  # noqa: BLE001 - a refusal counts as a miss
                 err, conf = float("inf"), 0.0
+                tilt_ok.append(False)
                 print(f"  refused: {e}")
             secs.append(time.perf_counter() - t)
             errs.append(err)
@@ -82,7 +91,8 @@ def main(argv=None):
         errs, confs = np.array(errs), np.array(confs)
         hi = confs >= 0.9
         print(f"{arc:7.0f}  {np.mean(errs <= 1):10.0%}  {np.median(errs):14.2f}  "
-              f"{int((errs[hi] <= 1).sum()):>3d} of {int(hi.sum()):<3d}      {np.mean(secs):.2f}")
+              f"{int((errs[hi] <= 1).sum()):>3d} of {int(hi.sum()):<3d}      {np.mean(secs):.2f}  "
+              f"{np.mean(tilt_ok):.0%}")
 
 
 if __name__ == "__main__":

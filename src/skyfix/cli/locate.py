@@ -355,3 +355,20 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     else:
         click.echo(to_json(d, indent=1))
     sys.stdout.flush()
+
+
+def _attitude_command() -> click.Command:
+    """``skyfix attitude``: the heading search read for all three angles. Its JSON is the heading
+    result's: roll, pitch and heading (true north) with their 1-sigmas, which of them the view
+    determines, and the confidence; a single frame is enough (one photograph: the NASA Ames use)."""
+    import copy
+
+    cmd = copy.copy(heading)
+    cmd.name = "attitude"
+    cmd.help = ("Find roll, pitch and heading from one frame (or any acquisition) at a known "
+                "position: their 1-sigmas and which of them the view determines.")
+    cmd.short_help = None
+    return cmd
+
+
+attitude = _attitude_command()

@@ -29,6 +29,7 @@ COMMANDS = {
     "profile": ("profile", "profile", "Turn an acquisition into an angular skyline profile."),
     "locate": ("locate", "locate", "Find position, heading and attitude from an acquisition."),
     "heading": ("locate", "heading", "Find the heading only, from a rough position."),
+    "attitude": ("locate", "attitude", "Find roll, pitch and heading from one frame at a known position."),
     "demo": ("demo", "demo", "Run the whole pipeline on bundled or generated data."),
     "evaluate": ("evaluate", "evaluate", "Evaluate a scenario on simulated cases."),
     "evaluate-detect": ("evaluate", "evaluate_detect", "Score skyline detection on labelled images."),

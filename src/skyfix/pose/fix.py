@@ -69,12 +69,20 @@ class HeadingFix:
     crs: str = ""
     lon: float = float("nan")
     lat: float = float("nan")
+    pitch_sigma_deg: float = float("nan")
+    roll_sigma_deg: float = float("nan")
+    #: which of heading, pitch and roll the view pins down: 1-sigma within DETERMINED_SIGMA_DEG
+    determined: dict = field(default_factory=dict)
     features: dict = field(default_factory=dict, compare=False)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d.pop("features")
         return d
+
+
+#: [deg] the largest 1-sigma at which an angle counts as determined by the view
+DETERMINED_SIGMA_DEG = 0.5
 
 
 def crs_and_lonlat(crs_wkt: str, x: float, y: float):

@@ -14,7 +14,7 @@ from ..north import meridian_convergence_deg, true_heading_deg
 from .attitude import fit_attitude
 from .confidence import (confidence_features, confidence_from_features, residual_correlation_bins,
                          structureless_cap)
-from .fix import HeadingFix, crs_and_lonlat
+from .fix import DETERMINED_SIGMA_DEG, HeadingFix, crs_and_lonlat
 from .forward import body_profile, harmonic_tilt, residual_profile
 from .scoring import profile_arrays
 
@@ -91,7 +91,13 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     # the fit's sigma counts every bin as independent; neighbouring residuals are not
     corr = residual_correlation_bins(residual_profile(q, world, att, prior_pitch_deg=prior_pitch_deg,
                                                       prior_roll_deg=prior_roll_deg))
-    hsig = att.yaw_sigma_deg * math.sqrt(max(1.0, corr))
+    inflate = math.sqrt(max(1.0, corr))
+    hsig = att.yaw_sigma_deg * inflate
+    psig, rsig = att.pitch_sigma_deg * inflate, att.roll_sigma_deg * inflate
+    determined = {k: bool(math.isfinite(v) and v <= DETERMINED_SIGMA_DEG)
+                  for k, v in (("heading", hsig), ("pitch", psig), ("roll", rsig))}
     return HeadingFix(true_heading_deg(grid, conv), hsig, att.pitch_deg, att.roll_deg,
                       conf, att.rms_deg ** 2, float(x), float(y), grid_heading_deg=grid,
-                      meridian_convergence_deg=conv, crs=crs, lon=lon, lat=lat, features=feat)
+                      meridian_convergence_deg=conv, crs=crs, lon=lon, lat=lat,
+                      pitch_sigma_deg=psig, roll_sigma_deg=rsig, determined=determined,
+                      features=feat)
