@@ -135,6 +135,20 @@ def test_no_import_circle():
     assert not cycles, "import circles between modules: " + "; ".join(" <-> ".join(c) for c in cycles)
 
 
+def test_no_import_circle_between_stages():
+    """The stages (``skyfix.X``: a module or a whole sub-package) import each other in one
+    direction only: ``figures`` drawing a traverse while ``traverse`` drew with ``figures`` was a
+    circle no module-level check saw."""
+    mods = _modules()
+    stage = {m: m.split(".")[1] if m.count(".") >= 1 else m for m in mods}
+    edges: dict[str, set[str]] = {s: set() for s in stage.values()}
+    for importer, target, _names, _line in _imports(mods):
+        if target in mods and stage[target] != stage[importer]:
+            edges[stage[importer]].add(stage[target])
+    cycles = _cycles(edges)
+    assert not cycles, "import circles between stages: " + "; ".join(" <-> ".join(c) for c in cycles)
+
+
 def test_no_private_name_crosses_a_module_boundary():
     mods = _modules()
     crossings = []

@@ -1,5 +1,5 @@
-"""Figures a person reads at a glance: a fix on its map, a frame with its detected skyline, a
-traverse over the terrain. matplotlib is imported only here and only when a figure is drawn
+"""Figures a person reads at a glance: a fix on its map, a frame with its detected skyline, and
+the hillshade under every map (the traverse's map is :mod:`skyfix.traverse.plots`). matplotlib is imported only here and only when a figure is drawn
 (the board segment never draws).
 """
 
@@ -34,7 +34,8 @@ def hillshade(dem, x0, x1, y0, y1, azimuth_deg=315.0, altitude_deg=45.0):
     return np.clip(shade, 0, 1), ext
 
 
-def _legend_outside(ax):
+def legend_outside(ax):
+    """The legend to the right of the axes, off the data."""
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=8)
 
 
@@ -90,7 +91,7 @@ def plot_fix_map(path, fix, dem, *, area=None, truth=None, pad_m=None) -> Path:
     ax.set_ylabel("north of the fix [m] (grid)")
     ax.set_title(f"fix x {fix.x:.1f}, y {fix.y:.1f} m ({fix.crs}); heading {fix.heading_deg:.1f} deg "
                  "from true north", fontsize=10)
-    _legend_outside(ax)
+    legend_outside(ax)
     save_figure(fig, path, bbox_inches="tight", dpi=110)
     plt.close(fig)
     return Path(path)
@@ -116,43 +117,3 @@ def plot_frame_skyline(path, rgb, skyline, title="") -> Path:
     plt.close(fig)
     return Path(path)
 
-
-def plot_track(path, rows, trav, dem, convergence) -> Path:
-    """A traverse over a hillshade: the truth (when known), odometry alone, the fused track, its
-    position fixes and the stops where the operator was asked. ``rows``: the stop records;
-    ``convergence(x, y)`` [deg] true minus grid north."""
-    from ._io import save_figure
-    from .report import pyplot
-    from .traverse.simulate import odometry_only
-
-    plt = pyplot()
-    xs = np.array([r["x"] for r in rows])
-    ys = np.array([r["y"] for r in rows])
-    pad = 300.0
-    x0, x1, y0, y1 = xs.min() - pad, xs.max() + pad, ys.min() - pad, ys.max() + pad
-    fig, ax = plt.subplots(figsize=(7, 7))
-    hs = hillshade(dem, x0, x1, y0, y1)
-    if hs is not None:
-        ax.imshow(hs[0], cmap="gray", extent=hs[1], origin="upper", alpha=0.6)
-    if trav.truth:
-        ax.plot([t["x"] for t in trav.truth], [t["y"] for t in trav.truth], "k-", lw=2, label="truth")
-    if trav.start is not None:
-        od = np.array(odometry_only(trav, convergence))
-        ax.plot(od[: len(rows), 0], od[: len(rows), 1], "--", color="tab:orange",
-                label="odometry alone")
-    ax.plot(xs, ys, "-", color="tab:blue", lw=1.5, label="fused")
-    fix = [k for k, r in enumerate(rows) if r["update"] == "position"]
-    ax.plot(xs[fix], ys[fix], "o", color="tab:green", ms=6, label="position fix")
-    ask = [k for k, r in enumerate(rows) if r["operator_request"]]
-    if ask:
-        ax.plot(xs[ask], ys[ask], "x", color="tab:red", ms=10, mew=2, label="operator request")
-    ax.set_xlim(x0, x1)
-    ax.set_ylim(y0, y1)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"traverse of {len(rows)} stops")
-    _legend_outside(ax)
-    save_figure(fig, path, bbox_inches="tight", dpi=110)
-    plt.close(fig)
-    return Path(path)

@@ -82,7 +82,7 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
                         convergence=convergence, on_stop=progress)
     write_track(Path(out), rows, dem.crs_wkt)
     if not no_plot:
-        from ..figures import plot_track
+        from ..traverse.plots import plot_track
 
         plot_track(Path(out) / "track.png", rows, trav, dem, convergence)
     asked = sum(r["operator_request"] is not None for r in rows)

@@ -57,7 +57,7 @@ def evaluate_traverse(dem_path, out, *, length_m=3000.0, stop_spacing_m=50.0, se
     """Simulate (``OUT/traverse``), fuse (``OUT/result``) and report (``OUT/report.html``); a
     rerun resumes both. Returns the report's path."""
     from ..dem import load_dem
-    from ..figures import plot_track
+    from .plots import plot_track
     from ..north import meridian_convergence_deg
     from ..report import format_table, write_report_html
     from .inputs import read_traverse
