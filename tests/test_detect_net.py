@@ -118,7 +118,7 @@ def test_hazy_relief_without_sky_is_no_skyline_for_a_member_that_never_saw_it():
 
 #: the share of the no-sky mosaics' columns claimed, held out (benchmarks/bench_detect.py --cv-net)
 #: plus a margin; see the README's detection row
-NO_SKY_CLAIMED_MAX = 0.5
+NO_SKY_CLAIMED_MAX = 0.25  # measured 0.194 at the shipped min_confidence 0.3 (target 0.01: not met)
 
 
 def test_image_conversions_and_refusals():

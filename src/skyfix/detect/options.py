@@ -232,7 +232,7 @@ class NetOptions:
     min_sky_rows: int = 2
     refine_band: float = 1.5
     conf_rows: int = 6
-    min_confidence: float = 0.0
+    min_confidence: float = 0.3  # cross-validated (bench_detect.py --cv-net): false + missed least
     min_run: int = 0
     anchor_conf: float = 0.0
     anchor_gap: float = 0.02
