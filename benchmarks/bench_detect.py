@@ -134,9 +134,10 @@ def time_at_4mp(pairs, method, out=sys.stdout, **options):
     return med
 
 
-def peak_rss_4mp(img, out=sys.stdout):
+def peak_rss_4mp(img, out=sys.stdout, method="net"):
     """Peak RSS [MB] of a fresh process that imports skyfix, reads one 4-MP image from a PNG and
-    detects its skyline with ``net`` (the whole process: interpreter, imports, image, network)."""
+    detects its skyline with ``method`` (the whole process: interpreter, imports, image, detector);
+    also the peak before detecting (imports and the image)."""
     import subprocess
     import tempfile
 
@@ -149,15 +150,17 @@ def peak_rss_4mp(img, out=sys.stdout):
         cv2.imwrite(str(path), big[..., ::-1] if big.ndim == 3 else big)
         code = ("import resource, sys, cv2; from skyfix.detect import detect_skyline; "
                 "im = cv2.cvtColor(cv2.imread(sys.argv[1]), cv2.COLOR_BGR2RGB); "
-                "detect_skyline(im, method='net'); "
+                "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024); "
+                f"detect_skyline(im, method='{method}'); "
                 "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
         r = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True)
     if r.returncode:
         print(f"   peak RSS measurement failed: {r.stderr.strip()[-300:]}", file=out)
         return None
-    mb = float(r.stdout.strip().splitlines()[-1])
-    print(f"   net: peak RSS of a process detecting one {big.shape[1]} x {big.shape[0]} image: "
-          f"{mb:.0f} MB (target 256 MB: ratio {mb / 256:.2f})", file=out, flush=True)
+    before, mb = (float(v) for v in r.stdout.strip().splitlines()[-2:])
+    print(f"   {method}: peak RSS of a process detecting one {big.shape[1]} x {big.shape[0]} image: "
+          f"{mb:.0f} MB ({before:.0f} MB with the imports and the image, before detecting; "
+          f"target 256 MB: ratio {mb / 256:.2f})", file=out, flush=True)
     return mb
 
 
@@ -285,8 +288,8 @@ def main(argv=None):
         for m in args.methods.split(","):
             run_set(pairs, m, title="(shipped model)", **(options if m == "dp" else {}))
             time_at_4mp(pairs, m, **(options if m == "dp" else {}))
-        if "net" in args.methods.split(","):
-            peak_rss_4mp(pairs[0][1])
+        for m in args.methods.split(","):
+            peak_rss_4mp(pairs[0][1], method=m)
     if args.cv:
         sim_dirs = sorted(p for p in Path(args.cv_sim).iterdir() if p.is_dir()) if args.cv_sim else []
         models = loo_models(folder, [p[0] for p in pairs], sim_dirs,
