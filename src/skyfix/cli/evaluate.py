@@ -8,7 +8,7 @@ import sys
 import click
 
 from ..detect.options import DEFAULT_METHOD, METHODS
-from .options import overwrite_option
+from .options import overwrite_option, traverse_path_options
 
 
 @click.command()
@@ -36,12 +36,7 @@ from .options import overwrite_option
                    "position errors are then counted beyond the simulated misregistration.")
 @click.option("--dem-sigma-m", type=float, default=None,
               help="The DEM's height error [m] the localiser allows for (PoseConfig.dem_sigma_m).")
-@click.option("--length-m", type=float, default=3000.0, show_default=True,
-              help="Traverse scenario: path length [m].")
-@click.option("--stop-spacing-m", type=float, default=50.0, show_default=True,
-              help="Traverse scenario: between stops [m].")
-@click.option("--stop-conditions", multiple=True, metavar="STOP=CONDITIONS",
-              help="Traverse scenario: conditions at one stop, e.g. 12=clouds:1 (repeatable).")
+@traverse_path_options
 @click.option("-o", "--out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @overwrite_option
 def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height_m, tilt_deg, skylines,

@@ -80,3 +80,15 @@ def point_xy(x, y, lon, lat, crs_wkt):
     if not crs_wkt:
         raise ParameterError("--lon/--lat need a DEM or database with a CRS")
     return lonlat_to_xy(crs_wkt, lon, lat)
+
+
+def traverse_path_options(f):
+    """``--length-m``, ``--stop-spacing-m`` and ``--stop-conditions`` of a simulated traverse
+    (``simulate-traverse`` and ``evaluate --scenario traverse``)."""
+    f = click.option("--stop-conditions", multiple=True, metavar="STOP=CONDITIONS",
+                     help="Simulated traverse: conditions at one stop, e.g. 12=clouds:1 or "
+                          "20=overexposed:1 (repeatable).")(f)
+    f = click.option("--stop-spacing-m", type=float, default=50.0, show_default=True,
+                     help="Simulated traverse: between stops [m].")(f)
+    return click.option("--length-m", type=float, default=3000.0, show_default=True,
+                        help="Simulated traverse: path length [m].")(f)

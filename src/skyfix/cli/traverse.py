@@ -8,6 +8,7 @@ import logging
 import click
 
 from ..errors import ParameterError
+from .options import traverse_path_options
 
 log = logging.getLogger("skyfix.stage")  # one line per stop at the default verbosity
 
@@ -115,15 +116,12 @@ def write_track(out, rows, crs_wkt) -> None:
 @click.argument("dem", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False),
               help="Traverse folder to write (rerun to resume: rendered stops are kept).")
-@click.option("--length-m", type=float, default=3000.0, show_default=True, help="Path length [m].")
-@click.option("--stop-spacing-m", type=float, default=50.0, show_default=True, help="Between stops [m].")
+@traverse_path_options
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--distance-drift", type=float, default=0.02, show_default=True,
               help="Odometry's 1-sigma error per step, as a share of the step.")
 @click.option("--heading-drift-deg-per-100m", type=float, default=0.5, show_default=True,
               help="Odometry's heading 1-sigma error per 100 m [deg].")
-@click.option("--stop-conditions", multiple=True, metavar="STOP=CONDITIONS",
-              help="Conditions at one stop, e.g. 12=clouds:1 or 20=dark:1 (repeatable).")
 @click.option("--mode", type=click.Choice(["frames", "panorama"]), default="frames", show_default=True)
 @click.option("--pano-size", type=int, nargs=2, default=(2048, 512), show_default=True, metavar="W H")
 @click.option("--leg-length-m", type=float, default=1000.0, show_default=True,
