@@ -28,7 +28,9 @@ CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [
 @click.option("--pan-start-deg", type=float, default=None, help="Pan of the first frame [deg].")
 @click.option("--pan-step-deg", type=float, default=None,
               help="Pan step [deg] (default: 2/3 of the field of view).")
-@click.option("--tilt-deg", type=float, default=0.0, show_default=True, help="Mast tilt, up positive [deg].")
+@click.option("--tilt-deg", type=float, default=15.0, show_default=True,
+              help="Mast tilt of every frame, up positive [deg] (the default of evaluate and demo too; "
+                   "a panorama is levelled and ignores it).")
 @click.option("--prior-pitch-deg", type=float, default=None,
               help="Inclinometer pitch to report, within +-60 [deg] (default: true).")
 @click.option("--prior-roll-deg", type=float, default=None,
@@ -84,8 +86,9 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
               metavar="W H", help="Panorama size [px] (360 x 90 deg).")
 @click.option("--frames", type=int, default=None, help="Frames per case (default: a full turn).")
 @click.option("--camera-height-m", type=float, default=1.5, show_default=True)
-@click.option("--tilt-deg", type=float, default=0.0, show_default=True,
-              help="Mast tilt of the frames, up positive [deg] (SCOM sets its own).")
+@click.option("--tilt-deg", type=float, default=15.0, show_default=True,
+              help="Mast tilt of the frames, up positive [deg] (SCOM sets its own; the default of "
+                   "simulate, evaluate and demo too).")
 @click.option("--planet", default=None,
               help="earth, mars, moon or a radius [m]; default: the body of the DEM's CRS (an Earth CRS may stand in for any body).")
 @click.option("--crs", default=None, help="Target CRS when the DEM must be reprojected.")
