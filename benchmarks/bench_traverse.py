@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import subprocess
 import sys
@@ -51,24 +50,12 @@ def main(argv=None):
         print(proc.stderr)
         raise SystemExit(proc.returncode)
     from skyfix.dem import load_dem
-    from skyfix.north import meridian_convergence_deg
-    from skyfix.traverse import read_traverse
-    from skyfix.traverse.simulate import odometry_only
+    from skyfix.traverse import convergence_function, read_traverse
+    from skyfix.traverse.evaluation import traverse_errors
 
     dem = load_dem(args.dem)
     rows = [json.loads(line) for line in (res / "stops.jsonl").read_text().splitlines()]
-    t = read_traverse(trav)
-    truth = t.truth
-
-    def conv(x, y):
-        c = meridian_convergence_deg(dem.crs_wkt, x, y)
-        return c if math.isfinite(c) else 0.0
-
-    odo = odometry_only(t, conv)
-    he = np.array([abs((r["heading_deg"] - tr["heading_deg"] + 180) % 360 - 180) for r, tr in zip(rows, truth)])
-    pe = np.array([math.hypot(r["x"] - tr["x"], r["y"] - tr["y"]) for r, tr in zip(rows, truth)])
-    ohe = np.array([abs((o[2] + conv(o[0], o[1]) - tr["heading_deg"] + 180) % 360 - 180) for o, tr in zip(odo, truth)])
-    ope = np.array([math.hypot(o[0] - tr["x"], o[1] - tr["y"]) for o, tr in zip(odo, truth)])
+    _, pe, he, ope, ohe = traverse_errors(rows, read_traverse(trav), convergence_function(dem.crs_wkt))
     fixes = [k for k, r in enumerate(rows) if r["update"] == "position"]
     upd = [r["update"] for r in rows]
     print(f"load average {load0:.2f} -> {os.getloadavg()[0]:.2f}; {Path(args.dem).name}, "

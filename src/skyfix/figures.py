@@ -1,6 +1,6 @@
 """Figures a person reads at a glance: a fix on its map, a frame with its detected skyline, and
-the hillshade under every map (the traverse's map is :mod:`skyfix.traverse.plots`). matplotlib is imported only here and only when a figure is drawn
-(the board segment never draws).
+the hillshade under every map (the traverse's map is :mod:`skyfix.traverse.plots`). matplotlib
+is imported only when a figure is drawn (the board segment never draws).
 """
 
 from __future__ import annotations

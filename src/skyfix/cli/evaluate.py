@@ -49,12 +49,11 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
 
     args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
     if scenario == "traverse":
-        from ..errors import ParameterError
+        from ..simulate import check_seed
         from ..traverse.evaluation import evaluate_traverse
         from ..traverse.simulate import parse_stop_conditions
 
-        if seed < 0:
-            raise ParameterError(f"--seed must be >= 0, got {seed}")
+        check_seed(seed)
         conds = parse_stop_conditions(stop_conditions)
         with writing_to(out):
             report = evaluate_traverse(dem_path, out, length_m=length_m, stop_spacing_m=stop_spacing_m,

@@ -38,9 +38,9 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
     from pathlib import Path
 
     from .._io import check_folder_output
-    from ..north import meridian_convergence_deg
     from ..progress import stage
-    from ..traverse import TraverseConfig, read_done, read_traverse, run_traverse
+    from ..traverse import (TraverseConfig, convergence_function, read_done, read_traverse,
+                            run_traverse)
     from ..traverse.measure import acquisition_measure
 
     if not (0.0 <= min_confidence <= 1.0):
@@ -68,9 +68,7 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
     cfg = TraverseConfig(min_confidence=min_confidence, max_rejections=max_rejections,
                          leg_length_m=leg_length_m)
 
-    def convergence(x, y):
-        c = meridian_convergence_deg(dem.crs_wkt, x, y)
-        return c if math.isfinite(c) else 0.0
+    convergence = convergence_function(dem.crs_wkt)
 
     def progress(k, d):
         req = " OPERATOR REQUEST" if d["operator_request"] else ""
@@ -132,10 +130,10 @@ def simulate_traverse(dem, out, length_m, stop_spacing_m, seed, distance_drift,
                       no_start):
     """Simulate a traverse: stops with acquisitions, odometry with drift, and the truth."""
     from ..dem import load_dem
+    from ..simulate import check_seed
     from ..traverse.simulate import parse_stop_conditions, simulate_traverse as _simulate
 
-    if seed < 0:
-        raise ParameterError(f"--seed must be >= 0, got {seed}")
+    check_seed(seed)
     if not (0 <= distance_drift < 1) or heading_drift_deg_per_100m < 0:
         raise ParameterError("drifts must be >= 0 (the distance drift a share below 1)")
     conds = parse_stop_conditions(stop_conditions)

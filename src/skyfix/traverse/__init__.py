@@ -8,8 +8,9 @@ heading), gated, with an operator request where the skyline cannot help.
 
 from .ekf import GATE_CHI2, Odometry, PoseFilter, Update, wrap_deg
 from .inputs import Start, Traverse, parse_odometry, read_traverse
-from .run import Measure, Measurement, TraverseConfig, read_done, run_traverse
+from .run import (Measure, Measurement, TraverseConfig, convergence_function, read_done,
+                  run_traverse)
 
 __all__ = ["GATE_CHI2", "Measure", "Measurement", "Odometry", "PoseFilter", "Start", "Traverse",
-           "TraverseConfig", "Update", "parse_odometry", "read_done", "read_traverse",
+           "TraverseConfig", "Update", "convergence_function", "parse_odometry", "read_done", "read_traverse",
            "run_traverse", "wrap_deg"]

@@ -57,12 +57,11 @@ def evaluate_traverse(dem_path, out, *, length_m=3000.0, stop_spacing_m=50.0, se
     """Simulate (``OUT/traverse``), fuse (``OUT/result``) and report (``OUT/report.html``); a
     rerun resumes both. Returns the report's path."""
     from ..dem import load_dem
-    from .plots import plot_track
-    from ..north import meridian_convergence_deg
     from ..report import format_table, write_report_html
     from .inputs import read_traverse
     from .measure import acquisition_measure
-    from .run import run_traverse
+    from .plots import plot_track
+    from .run import convergence_function, run_traverse
     from .simulate import simulate_traverse
 
     out = Path(out)
@@ -71,10 +70,7 @@ def evaluate_traverse(dem_path, out, *, length_m=3000.0, stop_spacing_m=50.0, se
                       seed=seed, stop_conditions=stop_conditions, mode=mode)
     trav = read_traverse(out / "traverse")
 
-    def convergence(x, y):
-        c = meridian_convergence_deg(dem.crs_wkt, x, y)
-        return c if math.isfinite(c) else 0.0
-
+    convergence = convergence_function(dem.crs_wkt)
     rows = run_traverse(trav, acquisition_measure(trav, dem), out / "result", convergence=convergence)
     dist, pe, he, ope, ohe = traverse_errors(rows, trav, convergence)
     fixes = [k for k, r in enumerate(rows) if r["update"] == "position"]

@@ -145,6 +145,18 @@ def _record(k, name, filt, convergence, **kw) -> dict:
     return d
 
 
+def convergence_function(crs_wkt: str) -> Callable:
+    """``(x, y) -> meridian convergence [deg]`` (true minus grid north) in ``crs_wkt``; 0 where the
+    CRS cannot say (no CRS: headings then stay in grid north)."""
+    from ..north import meridian_convergence_deg
+
+    def convergence(x, y):
+        c = meridian_convergence_deg(crs_wkt, x, y)
+        return c if math.isfinite(c) else 0.0
+
+    return convergence
+
+
 def read_done(path: Path, stops: list[str]) -> list[dict]:
     """The stop records already written (resume): whole lines only, in the traverse's order; a
     torn last line (the process killed mid-write) is dropped and rewritten."""
@@ -274,12 +286,3 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
             on_stop(k, d)
     return rows
 
-
-def track_errors(rows, truth):
-    """Per stop, (position error [m], heading error [deg]) of the records against the truth
-    (``truth.jsonl`` lines: x, y, heading_deg from true north)."""
-    out = []
-    for r, t in zip(rows, truth):
-        out.append((math.hypot(r["x"] - t["x"], r["y"] - t["y"]),
-                    abs(float(wrap_deg(r["heading_deg"] - t["heading_deg"])))))
-    return out

@@ -93,8 +93,9 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
     rendered is kept (rerunning resumes)."""
     from ..formats import Truth
     from ..north import meridian_convergence_deg, true_heading_deg
-    from ..simulate import simulate_acquisition
+    from ..simulate import check_seed, simulate_acquisition
 
+    seed = check_seed(seed)
     out = Path(out)
     stop_conditions = dict(stop_conditions or {})
     plan = plan_path(dem, length_m, stop_spacing_m, seed)
