@@ -6,7 +6,9 @@ leg's fix, odometry alone beside it, time per heading update and per leg-end fix
 
 Simulates the traverse (skipped when OUT/traverse already holds one), runs ``skyfix traverse`` on
 it, and prints the figures against the truth. The images are rendered from the map DEM itself
-(pass --world-from with a refined DEM to change that): read the figures with that in mind.
+unless --map-errors (a world that differs from the map, see skyfix.simulate.world) or --world-dem
+is given: read the figures with that in mind. Position errors count from where the truth's
+terrain lies on the map (the simulated misregistration cannot be undone).
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--stop-conditions", action="append", default=[])
     ap.add_argument("--mode", default="frames")
+    ap.add_argument("--map-errors", action="store_true")
+    ap.add_argument("--world-dem")
     args = ap.parse_args(argv)
     out = Path(args.out)
     trav, res = out / "traverse", out / "result"
@@ -41,6 +45,8 @@ def main(argv=None):
                      "--stop-spacing-m", str(args.spacing_m), "--seed", str(args.seed), "--mode", args.mode]
         for c in args.stop_conditions:
             cmd += ["--stop-conditions", c]
+        cmd += ["--map-errors"] if args.map_errors else []
+        cmd += ["--world-dem", args.world_dem] if args.world_dem else []
         subprocess.run(cmd, check=True)
     t0 = time.perf_counter()
     proc = subprocess.run(sky + ["traverse", str(trav), "--dem", args.dem, "-o", str(res)],
@@ -58,8 +64,11 @@ def main(argv=None):
     _, pe, he, ope, ohe = traverse_errors(rows, read_traverse(trav), convergence_function(dem.crs_wkt))
     fixes = [k for k, r in enumerate(rows) if r["update"] == "position"]
     upd = [r["update"] for r in rows]
+    world = ("world = map" if not (args.map_errors or args.world_dem) else
+             "world: map errors" if args.map_errors else f"world: {Path(args.world_dem).name}")
     print(f"load average {load0:.2f} -> {os.getloadavg()[0]:.2f}; {Path(args.dem).name}, "
-          f"{len(rows)} stops over {args.length_m:g} m, seed {args.seed}; traverse wall {wall:.0f} s")
+          f"{len(rows)} stops over {args.length_m:g} m, seed {args.seed}, {args.mode}, {world}; "
+          f"traverse wall {wall:.0f} s")
     print(f"updates: {upd.count('heading')} heading, {upd.count('position')} position, "
           f"{upd.count('rejected')} rejected, {upd.count('none')} none; operator requests at "
           f"{[k for k, r in enumerate(rows) if r['operator_request']]}")

@@ -86,3 +86,31 @@ def test_evaluate_traverse_reports_fused_against_odometry(tmp_path):
         if r_["update"] in ("heading", "position"):
             assert abs((r_["heading_deg"] - t["heading_deg"] + 180) % 360 - 180) < 1.0
     assert rows[2]["update"] == "position"
+
+
+def test_a_traverse_rendered_from_a_world_that_is_not_the_map(tmp_path):
+    """--map-errors: the stops are rendered from a world DEM (refined, height error, a 3 m
+    misregistration); positions are scored from where the truth's terrain lies on the map."""
+    from skyfix.traverse import read_traverse
+    from skyfix.traverse.evaluation import traverse_errors
+
+    dem = shared_dem_path("south_glacier_20m")
+    trav = tmp_path / "t"
+    r = run("simulate-traverse", dem, "-o", trav, "--length-m", 50, "--stop-spacing-m", 50,
+            "--mode", "panorama", "--pano-size", 720, 180, "--seed", 4, "--map-errors")
+    assert r.exit_code == 0, r.output
+    meta = json.loads((trav / "traverse.json").read_text())
+    dx, dy = meta["simulation"]["map_errors"]["map_offset_m"]
+    assert math.hypot(dx, dy) == pytest.approx(3.0)
+    acq = json.loads((trav / "stop_000" / "acquisition.json").read_text())
+    assert acq["simulation"]["dem"]["source"].startswith("world of")
+    t = read_traverse(trav)
+    # a track exactly where the truth's terrain lies on the map has no error; the truth itself is
+    # off by the misregistration
+    on_map = [{"x": s["x"] + dx, "y": s["y"] + dy, "heading_deg": s["heading_deg"]} for s in t.truth]
+    _, pe, he, _, _ = traverse_errors(on_map, t, lambda x, y: 0.0)
+    assert pe.max() < 1e-9 and he.max() < 1e-9
+    _, pe, _, _, _ = traverse_errors(t.truth, t, lambda x, y: 0.0)
+    assert pe == pytest.approx([3.0, 3.0])
+    r = run("simulate-traverse", dem, "-o", tmp_path / "u", "--map-errors", "--world-dem", dem)
+    assert r.exit_code == 2 and "not both" in r.output

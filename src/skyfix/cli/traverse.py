@@ -125,19 +125,28 @@ def write_track(out, rows, crs_wkt) -> None:
 @click.option("--leg-length-m", type=float, default=1000.0, show_default=True,
               help="Written to traverse.json: a position fix after this many metres.")
 @click.option("--no-start", is_flag=True, help="Write no start fix (the first stop is located).")
+@click.option("--map-errors", is_flag=True,
+              help="Render the stops from a world that differs from the map DEM (refined, height "
+                   "error, spikes, a 3 m misregistration; see skyfix.simulate.world).")
+@click.option("--world-dem", type=click.Path(dir_okay=False), default=None,
+              help="Render the stops from this second DEM of the same place instead of DEM (the "
+                   "path is still planned on DEM, the map).")
 def simulate_traverse(dem, out, length_m, stop_spacing_m, seed, distance_drift,
                       heading_drift_deg_per_100m, stop_conditions, mode, pano_size, leg_length_m,
-                      no_start):
+                      no_start, map_errors, world_dem):
     """Simulate a traverse: stops with acquisitions, odometry with drift, and the truth."""
     from ..dem import load_dem
-    from ..simulate import check_seed
+    from ..simulate import MapErrors, check_seed
     from ..traverse.simulate import parse_stop_conditions, simulate_traverse as _simulate
 
     check_seed(seed)
     if not (0 <= distance_drift < 1) or heading_drift_deg_per_100m < 0:
         raise ParameterError("drifts must be >= 0 (the distance drift a share below 1)")
     conds = parse_stop_conditions(stop_conditions)
+    if map_errors and world_dem:
+        raise ParameterError("give --map-errors or --world-dem, not both")
     d = load_dem(dem)
+    world = load_dem(world_dem, crs=d.crs_wkt) if world_dem else None  # the map's CRS: positions agree
 
     def progress(k, n):
         if (k + 1) % 10 == 0 or k + 1 == n:
@@ -147,5 +156,6 @@ def simulate_traverse(dem, out, length_m, stop_spacing_m, seed, distance_drift,
                      distance_drift=distance_drift,
                      heading_drift_deg_per_100m=heading_drift_deg_per_100m, stop_conditions=conds,
                      mode=mode, pano_size=pano_size, with_start=not no_start,
-                     leg_length_m=leg_length_m, on_stop=progress)
+                     leg_length_m=leg_length_m, on_stop=progress, world=world,
+                     map_errors=MapErrors() if map_errors else None)
     click.echo(f"traverse -> {path}", err=True)

@@ -11,11 +11,13 @@ import numpy as np
 
 def traverse_errors(rows, trav, convergence):
     """Per stop: distance driven by the truth [m], fused position and heading errors [m, deg], and
-    odometry alone's [m, deg]."""
+    odometry alone's [m, deg]. Positions are compared with where the truth's terrain lies on the
+    map (the truth plus the simulated map offset: no localiser can undo a misregistration)."""
     from .ekf import wrap_deg
-    from .simulate import odometry_only
+    from .simulate import map_offset_of, odometry_only
 
-    truth = trav.truth
+    ox, oy = map_offset_of(trav)
+    truth = [{**t, "x": t["x"] + ox, "y": t["y"] + oy} for t in trav.truth]
     odo = odometry_only(trav, convergence)
     dist = np.r_[0.0, np.cumsum([math.hypot(b["x"] - a["x"], b["y"] - a["y"])
                                  for a, b in zip(truth[:-1], truth[1:])])]

@@ -86,24 +86,45 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
                       stop_conditions: dict | None = None, camera="navcam", mode="frames",
                       pano_size=(2048, 512), tilt_deg=15.0, camera_height_m=1.5, planet=None,
                       start_sigmas=(2.0, 1.0), with_start=True, leg_length_m=1000.0,
-                      on_stop=None) -> Path:
+                      map_errors=None, world=None, on_stop=None) -> Path:
     """Write a traverse folder ``out`` (``docs/conventions.md``, "Traverse"): ``stop_NNN/``
-    acquisitions, ``odometry.jsonl``, ``traverse.json`` (the start: the truth blurred by
+    acquisitions, ``odometry.jsonl``, ``traverse.json`` (the start: the truth on the map blurred by
     ``start_sigmas`` = (position [m], heading [deg]) 1-sigma), ``truth.jsonl``. A stop already
-    rendered is kept (rerunning resumes)."""
+    rendered is kept (rerunning resumes).
+
+    map_errors : render every stop from :func:`skyfix.simulate.world.world_dem` of ``dem`` with
+        these errors (:class:`skyfix.simulate.MapErrors`), one world drawn from ``seed``;
+        ``traverse.json`` records them and the map offset (truth to where the truth's terrain lies
+        on the map), which :func:`map_offset_of` reads back
+    world : render from this DEM instead (any second DEM of the same place, in ``dem``'s CRS)
+
+    The path is planned on ``dem`` (the map); ``truth.jsonl`` is where the rover is in the world.
+    """
     from ..formats import Truth
     from ..north import meridian_convergence_deg, true_heading_deg
     from ..simulate import check_seed, simulate_acquisition
+    from ..simulate.world import map_offset, world_dem
 
     seed = check_seed(seed)
     out = Path(out)
     stop_conditions = dict(stop_conditions or {})
+    if map_errors is not None and world is not None:
+        raise ParameterError("give map errors or a world DEM, not both")
     plan = plan_path(dem, length_m, stop_spacing_m, seed)
     n = plan.x.size
     bad = [k for k in stop_conditions if not 0 <= k < n]
     if bad:
         raise ParameterError(f"stop conditions for stops {bad}: the traverse has stops 0-{n - 1}")
     rng = np.random.default_rng(seed + 1)
+    sim_world: dict = {}
+    offset = (0.0, 0.0)
+    if world is not None:
+        sim_world["world"] = {"source": world.source, "sha256": world.checksum}
+    elif map_errors is not None:
+        offset = map_offset(map_errors, seed)
+        sim_world["map_errors"] = {**map_errors.to_dict(), "seed": int(seed),
+                                   "map_offset_m": list(offset)}
+    render = dem
     out.mkdir(parents=True, exist_ok=True)
     conv = [meridian_convergence_deg(dem.crs_wkt, x, y) for x, y in zip(plan.x, plan.y)]
     conv = [c if math.isfinite(c) else 0.0 for c in conv]
@@ -111,11 +132,15 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
     for k in range(n):
         folder = out / names[k]
         if not (folder / "acquisition.json").is_file():
-            simulate_acquisition(dem, Truth(float(plan.x[k]), float(plan.y[k]), float(plan.heading_deg[k])),
+            if render is dem and (world is not None or map_errors is not None):
+                # drawn once, and only when a stop is still to render (a resumed run skips it)
+                render = world if world is not None else world_dem(dem, map_errors, seed)
+            simulate_acquisition(render, Truth(float(plan.x[k]), float(plan.y[k]), float(plan.heading_deg[k])),
                                  folder, camera=camera, mode=mode, pano_size=tuple(pano_size),
                                  tilt_deg=tilt_deg if mode == "frames" else 0.0,
                                  camera_height_m=camera_height_m, planet=planet,
-                                 conditions=stop_conditions.get(k), seed=seed * 1000 + k)
+                                 conditions=stop_conditions.get(k), seed=seed * 1000 + k,
+                                 simulation_meta=sim_world)
         if on_stop is not None:
             on_stop(k, n)
     s = stop_spacing_m
@@ -133,10 +158,13 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
             "simulation": {"seed": seed, "length_m": length_m, "stop_spacing_m": stop_spacing_m,
                            "distance_drift": distance_drift,
                            "heading_drift_deg_per_100m": heading_drift_deg_per_100m,
-                           "stop_conditions": {names[k]: c for k, c in sorted(stop_conditions.items())}}}
+                           "stop_conditions": {names[k]: c for k, c in sorted(stop_conditions.items())},
+                           **sim_world}}
     if with_start:
         ps, hsd = start_sigmas
-        meta["start"] = {"x": float(plan.x[0] + rng.normal(0, ps)), "y": float(plan.y[0] + rng.normal(0, ps)),
+        # a start fix is a fix on the map: where the truth's terrain lies there
+        meta["start"] = {"x": float(plan.x[0] + offset[0] + rng.normal(0, ps)),
+                         "y": float(plan.y[0] + offset[1] + rng.normal(0, ps)),
                          "heading_deg": truth[0]["heading_deg"] + float(rng.normal(0, hsd)),
                          "position_sigma_m": ps, "heading_sigma_deg": hsd}
     from .._io import write_json, write_jsonl
@@ -145,6 +173,14 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
     write_jsonl(out / TRUTH_FILE, truth)
     write_json(out / TRAVERSE_FILE, meta)
     return out
+
+
+def map_offset_of(trav) -> tuple[float, float]:
+    """(dx, dy) [m] from a simulated traverse's truth to where its terrain lies on the map (0, 0
+    when the world was the map, or for a traverse that is not simulated)."""
+    sim = (getattr(trav, "meta", None) or {}).get("simulation") or {}
+    off = (sim.get("map_errors") or {}).get("map_offset_m") or (0.0, 0.0)
+    return float(off[0]), float(off[1])
 
 
 def odometry_only(trav, convergence=lambda x, y: 0.0) -> list[tuple[float, float, float]]:
