@@ -53,7 +53,7 @@ def make(out: Path) -> tuple[Path, Path]:
     import cv2
 
     from skyfix.dem import load_dem
-    from skyfix.simulate.world import _fractal
+    from skyfix.simulate.world import fractal_noise
 
     alps = load_dem(ALPS)
     z = np.where(np.isfinite(alps.z), alps.z, np.nanmean(alps.z)).astype(np.float32)
@@ -76,7 +76,7 @@ def make(out: Path) -> tuple[Path, Path]:
     mx, my = np.meshgrid(xs, ys)
     hi = cv2.remap(big, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT).astype(np.float64)
     rng = np.random.default_rng(7)
-    hi += 0.8 * _fractal(hi.shape, 1.0, 2.0, 150.0, rng)
+    hi += 0.8 * fractal_noise(hi.shape, 1.0, 2.0, 150.0, rng)
     hi_p = _write_geo(out / "hirise_like_1m.tif", hi, 1.0)
     return hi_p, mola_p
 

@@ -141,3 +141,37 @@ def test_build_and_locate_on_a_stack(tmp_path, stack_files):
     only_fine = CliRunner().invoke(cli, ["locate", "--profile", str(tmp_path / "p.json"), "--db",
                                          str(db), "--dem", str(fine_p)])
     assert only_fine.exit_code == 2 and "is not the DEM the database" in only_fine.output
+
+
+def test_a_simulated_panorama_of_the_stack_is_that_of_the_dem_merged_by_hand(stack_files, tmp_path):
+    """The simulator renders a stack as one terrain: the panorama's exact skyline is the one
+    rendered from the hand-merged DEM (whose 10 m samples of the coarse surface, on the coarse
+    grid's lines, reproduce it exactly: measured identical to the 0.001 px written), and the
+    ridge only the coarse DEM holds is in it, 15 px above the fine DEM's own skyline."""
+    import json
+
+    from skyfix.formats import Truth
+    from skyfix.simulate import simulate_acquisition
+
+    fine_p, coarse_p, coarse, fine = stack_files
+    stack = load_dems([fine_p, coarse_p])
+    merged = _merged_by_hand(coarse, fine)
+    truth = Truth(X0 + 8100.0, Y0 - 7900.0, 30.0)
+    skylines = []
+    for name, dem in (("stack", stack), ("merged", merged), ("fine", fine)):
+        out = simulate_acquisition(dem, truth, tmp_path / name, mode="panorama", pano_size=(1440, 360),
+                                   planet="earth")
+        skylines.append(np.array(json.loads((out / "pano.skyline.json").read_text())["rows"],
+                                 dtype=float))
+        meta = json.loads((out / "acquisition.json").read_text())["simulation"]["dem"]
+        assert ("sources" in meta) == (name == "stack")
+    assert isinstance(stack, DemStack)
+    a, b, fine_only = skylines
+    ok = np.isfinite(a) & np.isfinite(b)
+    assert ok.sum() == 1440
+    d = np.abs(a - b)[ok]  # 4 px per degree
+    assert np.percentile(d, 99) <= 0.01 and d.max() <= 0.05, np.percentile(d, [50, 99, 100])
+    # the ridge 5.5 km east (grid azimuth 90: body azimuth 60, column (60 + 180) * 4) stands above
+    # what the fine DEM alone shows there
+    for col in (950, 960, 970):
+        assert a[col] < fine_only[col] - 10.0, (a[col], fine_only[col])

@@ -184,6 +184,23 @@ def column_skyline(dem: Dem, origin, proj: Projection, sky_mask: np.ndarray, *, 
     return out
 
 
+def ground_hits(dem: Dem, origin, proj: Projection, u, v, *, planet="earth", rocks=None,
+                max_distance_m: float | None = None) -> np.ndarray:
+    """True where the ray through the continuous pixel position (u = column, v = row) [px] meets
+    the terrain of ``dem`` (or one of ``rocks``): the test :func:`column_skyline` bisects with,
+    for callers that combine several surfaces (a DEM stack)."""
+    planet = get_planet(planet)
+    data, offs, rows, cols = packed_pyramid(dem)
+    u = np.ascontiguousarray(u, np.float64).ravel()
+    v = np.ascontiguousarray(v, np.float64).ravel()
+    out = np.empty(u.size, np.bool_)
+    _ground_kernel(dem.z, data, offs, rows, cols, dem.x0, dem.y0, dem.dx, dem.dy,
+                   np.asarray(origin, np.float64), proj.kind, np.asarray(proj.params, np.float64),
+                   np.asarray(proj.rotation, np.float64), float(max_distance_m or np.inf),
+                   planet.curvature_coeff, T_MIN_M, _rocks_array(rocks), u, v, out)
+    return out
+
+
 # --- kernels -------------------------------------------------------------------------------------
 
 @numba.njit(cache=True, nogil=True)
@@ -451,3 +468,11 @@ def _skyline_kernel(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, o, kind, p, R
             else:
                 lo = mid
         out[j] = 0.5 * (lo + hi)
+
+
+@numba.njit(cache=True, parallel=True, nogil=True)
+def _ground_kernel(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, o, kind, p, R, max_d, curv, t_min,
+                   rocks, us, vs, out):
+    for k in numba.prange(us.size):
+        out[k] = _ground_at(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, o, kind, p, R, max_d, curv,
+                            t_min, rocks, us[k], vs[k])

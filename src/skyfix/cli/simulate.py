@@ -11,7 +11,7 @@ CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [
 
 
 @click.command("simulate")
-@click.argument("dem", type=click.Path(dir_okay=False))
+@click.argument("dem", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--x", "x", type=float, required=True, help="Rover easting [m] in the DEM's CRS.")
 @click.option("--y", "y", type=float, required=True, help="Rover northing [m] in the DEM's CRS.")
 @click.option("--yaw-deg", type=float, required=True,
@@ -47,8 +47,11 @@ CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [
 def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, camera, pano_size, frames,
              pan_start_deg, pan_step_deg, tilt_deg, prior_pitch_deg, prior_roll_deg, conditions, seed,
              planet, crs, out, overwrite):
-    """Render an acquisition of DEM seen from (X, Y) with its exact skylines."""
-    from ..dem import load_dem
+    """Render an acquisition of DEM seen from (X, Y) with its exact skylines.
+
+    Several DEMs of one place make a stack (a 1 m DTM inside a 20 m one inside a global one): the
+    finest that covers a point is the terrain there, as in build-db and locate."""
+    from ..stack import load_dems
     from ..formats import Truth
     from ..simulate import (Conditions, check_attitude_prior, check_render_options,
                             simulate_acquisition)
@@ -62,8 +65,9 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
     if prior_pitch_deg is not None or prior_roll_deg is not None:
         prior = check_attitude_prior((pitch_deg if prior_pitch_deg is None else prior_pitch_deg,
                               roll_deg if prior_roll_deg is None else prior_roll_deg))
-    _check_out(out, overwrite, dem)
-    d = load_dem(dem, crs=crs)
+    for p in dem:
+        _check_out(out, overwrite, p)
+    d = load_dems(dem, crs=crs)
     with writing_to(out):
         path = simulate_acquisition(
             d, Truth(x, y, yaw_deg, pitch_deg, roll_deg), out, camera=camera, mode=mode, frames=frames,

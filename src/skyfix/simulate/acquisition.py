@@ -29,9 +29,10 @@ from ..errors import ParameterError
 from ..formats import (Acquisition, Frame, PanoramaSpec, Skyline, Truth, save_acquisition,
                        write_skyline_json)
 from ..planets import get_planet, resolve_planet
-from ..raycast import Projection, camera_centre, cast_image, column_skyline
+from ..raycast import Projection, camera_centre
 from .conditions import as_conditions
 from .folders import check_out_folder, staged_folder
+from .layered import cast_layers, scene_layers, skyline_layers
 from .scene import Scene, make_scene, rock_layout
 from .shading import shade
 
@@ -117,15 +118,15 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
             raise OSError(f"could not write {path}")
 
 
-def _render_one(dem, origin, proj: Projection, scene: Scene, planet, name: str, out: Path,
+def _render_one(layers, origin, proj: Projection, scene: Scene, planet, name: str, out: Path,
                 focal_px: float, rng, sun_pixel, vignetting: bool) -> dict:
     rocks = scene.rocks_array()
-    cast = cast_image(dem, origin, proj, planet=planet, rocks=rocks)
+    cast = cast_layers(layers, origin, proj, planet=planet, rocks=rocks)
     terrain_sky = ~np.isfinite(cast.terrain_t)
-    rows = column_skyline(dem, origin, proj, terrain_sky, planet=planet)
+    rows = skyline_layers(layers, origin, proj, terrain_sky, planet=planet)
     vis = rows
     if len(rocks):
-        vis = column_skyline(dem, origin, proj, cast.kind == 0, planet=planet, rocks=rocks)
+        vis = skyline_layers(layers, origin, proj, cast.kind == 0, planet=planet, rocks=rocks)
     img = shade(cast, scene, focal_px=focal_px, rng=rng, sun_pixel=sun_pixel, vignetting=vignetting,
                 edge_rows=vis)
     _write_png(out / name, img)
@@ -155,7 +156,8 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
     sibling folder that takes ``out``'s place (with ``overwrite``: replaces it whole) only once
     complete, so a refusal, a failure or a kill leaves an earlier ``out`` as it was.
 
-    dem : the terrain; truth : rover position [m] and attitude (yaw, pitch, roll) [deg]; the yaw
+    dem : the terrain (a :class:`skyfix.dem.Dem`, or a :class:`skyfix.stack.DemStack`: the finest
+        member that covers a point is the terrain there); truth : rover position [m] and attitude (yaw, pitch, roll) [deg]; the yaw
         is written normalised to [0, 360) (400 -> 40)
     camera : preset name (``navcam``, ``wide``) or a :class:`Camera` (frames mode)
     mode : ``frames`` (mast frame set) or ``panorama`` (equirectangular, levelled in the body frame)
@@ -192,6 +194,7 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
     if cond.clouds > 0 and planet_key != "earth":
         raise ParameterError("the clouds condition is for Earth only: drop it or use --planet earth")
     origin = camera_centre(dem, truth.x, truth.y, camera_height_m)
+    layers = scene_layers(dem, origin)  # one DEM, or a stack's members as seen from here
     check_out_folder(out, overwrite)  # before the rock layout's horizon rendering
 
     if mode == "frames":
@@ -228,19 +231,20 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
                 name = f"frame_{k:03d}.png"
                 proj = Projection.frame(cam, truth.yaw_deg, truth.pitch_deg, truth.roll_deg, pan, tilt_deg)
                 sun_px = sun_pixel(cam, proj, scene)
-                infos.append(_render_one(dem, origin, proj, scene, pl, name, tmp, focal, rng, sun_px, True))
+                infos.append(_render_one(layers, origin, proj, scene, pl, name, tmp, focal, rng, sun_px, True))
                 frame_list.append(Frame(name, pan, float(tilt_deg)))
             acq = Acquisition(out, cam, float(camera_height_m), frames=tuple(frame_list))
         else:
             proj = Projection.panorama(pano, w, h, truth.yaw_deg, truth.pitch_deg, truth.roll_deg)
-            infos.append(_render_one(dem, origin, proj, scene, pl, pano.image, tmp, focal, rng, None, False))
+            infos.append(_render_one(layers, origin, proj, scene, pl, pano.image, tmp, focal, rng, None, False))
             acq = Acquisition(out, None, float(camera_height_m), panorama=pano)
 
         acq = replace(acq, prior_pitch_deg=prior[0], prior_roll_deg=prior[1])
         sim = {
             **(simulation_meta or {}),
             "planet": pl.name, "seed": int(seed), "conditions": cond.active(), "mode": mode,
-            "dem": {"source": dem.source, "checksum": dem.checksum, "crs": dem.crs_name},
+            "dem": {"source": dem.source, "checksum": dem.checksum, "crs": dem.crs_name,
+                    **({"sources": dem.sources} if hasattr(dem, "sources") else {})},
             "ground_z_m": float(origin[2] - camera_height_m),
             "sun": {"azimuth_deg": scene.sun_az_deg % 360.0, "elevation_deg": scene.sun_el_deg},
             "rocks": [dict(zip(("x", "y", "z", "radius_h_m", "radius_v_m"), r)) for r in rocks],

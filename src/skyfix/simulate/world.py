@@ -66,7 +66,7 @@ def map_offset(errors: MapErrors, seed: int) -> tuple[float, float]:
     return (-errors.shift_m * math.sin(a), -errors.shift_m * math.cos(a))
 
 
-def _fractal(shape, cell_m, min_wavelength_m, max_wavelength_m, rng, beta=3.0):
+def fractal_noise(shape, cell_m, min_wavelength_m, max_wavelength_m, rng, beta=3.0):
     """Zero-mean, unit-rms noise with a power spectrum ~ f**-beta between two wavelengths [m]."""
     ny, nx = shape
     fy = np.fft.fftfreq(ny, cell_m)[:, None]
@@ -102,7 +102,7 @@ def world_dem(map_dem: Dem, errors: MapErrors = MapErrors(), seed: int = 0) -> D
     w = w.astype(np.float64)
     fine_cell = min(cell)
     if errors.detail_rms_m > 0 and k > 1:
-        w += errors.detail_rms_m * _fractal(fine_shape, fine_cell, 2.0 * fine_cell,
+        w += errors.detail_rms_m * fractal_noise(fine_shape, fine_cell, 2.0 * fine_cell,
                                             2.0 * map_dem.cell_m, rng)
     if errors.height_rms_m > 0:
         e = ndimage.gaussian_filter(rng.normal(size=fine_shape), errors.correlation_m / fine_cell,
