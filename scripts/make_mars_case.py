@@ -1,6 +1,6 @@
 """A Mars case shaped as missions publish their DEMs, built from this project's reference data.
 
-    python scripts/make_mars_case.py OUT [--locate N]
+    python scripts/make_mars_case.py OUT [--locate N] [--detect N]
 
 Writes, in IAU_2015:49900 (Mars 2015 sphere, geographic), centred on Jezero (77.5 E, 18.4 N):
 - ``OUT/mola_like_200m.tif``: a ~200 km, 200 m "MOLA-like" DEM: the Alps SRTM tile's relief
@@ -10,8 +10,11 @@ Writes, in IAU_2015:49900 (Mars 2015 sphere, geographic), centred on Jezero (77.
 Then builds a 2 x 2 km database at 20 m over the stack (``skyfix build-db HIRISE --dem MOLA``) and
 locates N rovers from exact skylines of the stack (noise 0.02 deg, off-grid, random heading),
 printing each position error and the heading error against TRUE north (from the fix's
-``heading_deg``, the truth's grid yaw plus the CRS's meridian convergence). Skylines detected in
-images are not part of it: the simulator renders one DEM, not a stack.
+``heading_deg``, the truth's grid yaw plus the CRS's meridian convergence). With ``--detect N``,
+N acquisitions are also rendered from the stack (``skyfix simulate HIRISE MOLA``: navcam frames
+on a mast tilted 15 deg, a full turn, light dust) and located from the skylines skyfix detects in
+them (``skyfix locate ACQ --db DB --dem HIRISE --dem MOLA``), with the same two errors. A rerun
+keeps the DEMs, the database and rendered acquisitions already in OUT.
 """
 
 from __future__ import annotations
@@ -86,12 +89,16 @@ def main(argv=None):
     ap.add_argument("out")
     ap.add_argument("--locate", type=int, default=5, help="rovers to locate (0: build only)")
     ap.add_argument("--spacing-m", type=float, default=20.0)
+    ap.add_argument("--detect", type=int, default=0,
+                    help="acquisitions to render from the stack and locate from detected skylines")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
-    hi_p, mola_p = make(out)
-    print(f"wrote {hi_p} and {mola_p} ({time.time() - t0:.0f} s)", flush=True)
+    hi_p, mola_p = out / "hirise_like_1m.tif", out / "mola_like_200m.tif"
+    if not (hi_p.is_file() and mola_p.is_file()):
+        hi_p, mola_p = make(out)
+        print(f"wrote {hi_p} and {mola_p} ({time.time() - t0:.0f} s)", flush=True)
     from skyfix.stack import load_dems
 
     stack = load_dems([hi_p, mola_p])
@@ -103,7 +110,7 @@ def main(argv=None):
            "-o", str(db), "--bounds", str(-half), str(-half), str(half), str(half),
            "--spacing-m", str(args.spacing_m), "--workers", "0", "--no-progress"]
     t0 = time.time()
-    r = subprocess.run(cmd, capture_output=True, text=True)
+    r = subprocess.run(cmd, capture_output=True, text=True)  # resumes (or finds it complete)
     print((r.stdout + r.stderr).strip().splitlines()[-1], f"({time.time() - t0:.0f} s)", flush=True)
     if r.returncode:
         raise SystemExit(r.stderr)
@@ -139,6 +146,47 @@ def main(argv=None):
         pe, he = np.array(errs).T
         print(f"{len(errs)} rovers: position error max {pe.max():.3f} m, heading error max "
               f"{he.max():.4f} deg (targets 1 m, 0.05 deg)")
+    if args.detect:
+        detect_and_locate(out, stack, hi_p, mola_p, db, args.detect, half)
+
+
+def detect_and_locate(out, stack, hi_p, mola_p, db, n, half):
+    """Render ``n`` acquisitions from the stack and locate each from its detected skylines."""
+    from skyfix.north import meridian_convergence_deg, true_heading_deg
+
+    sky = [sys.executable, "-m", "skyfix.cli.main", "-q"]
+    rng = np.random.default_rng(2)
+    errs = []
+    for i in range(n):
+        tx, ty = rng.uniform(-half + 100, half - 100, 2)
+        th = float(rng.uniform(0, 360))
+        acq = out / f"acq_{i}"
+        if not (acq / "acquisition.json").is_file():
+            r = subprocess.run(sky + ["simulate", str(hi_p), str(mola_p), "--x", str(tx), "--y", str(ty),
+                                      "--yaw-deg", str(th), "--conditions", "dust:0.3", "--seed", str(i),
+                                      "-o", str(acq), "--overwrite"], capture_output=True, text=True)
+            if r.returncode:
+                print(r.stderr)
+                continue
+        fx = out / f"fix_detected_{i}.json"
+        t0 = time.time()
+        r = subprocess.run(sky + ["locate", str(acq), "--db", str(db), "--dem", str(hi_p), "--dem",
+                                  str(mola_p), "-o", str(fx), "--overwrite"], capture_output=True, text=True)
+        if r.returncode:
+            print(f"acquisition {i}: {r.stderr.strip().splitlines()[-1]}")
+            continue
+        fix = json.loads(fx.read_text())
+        true_h = true_heading_deg(th, meridian_convergence_deg(stack.crs_wkt, tx, ty))
+        pe = math.hypot(fix["x"] - tx, fix["y"] - ty)
+        he = abs((fix["heading_deg"] - true_h + 180) % 360 - 180)
+        errs.append((pe, he, fix["confidence"]))
+        print(f"detected {i}: position error {pe:.3f} m, heading error vs true north {he:.4f} deg, "
+              f"confidence {fix['confidence']:.2f} ({time.time() - t0:.0f} s)", flush=True)
+    if errs:
+        pe, he, c = np.array(errs).T
+        print(f"{len(errs)} acquisitions with detection: position error median {np.median(pe):.2f} m, "
+              f"max {pe.max():.2f} m; heading error median {np.median(he):.3f} deg, max "
+              f"{he.max():.3f} deg; within 1 m {int(np.sum(pe <= 1))}/{len(errs)}")
 
 
 if __name__ == "__main__":

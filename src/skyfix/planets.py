@@ -82,8 +82,25 @@ def planet_from_crs(crs) -> Planet | None:
     if abs(radius / EARTH.radius_m - 1) < 0.01 and not any(
             w in names for w in ("mars", "moon", "lunar", "venus", "mercury")):
         return EARTH
-    body = (getattr(c.datum, "name", "") or ell.name or "body").split("(")[0].split("/")[0].strip()
-    return Planet(body.lower() or f"radius {radius:g} m", radius, 0.0)
+    body = (getattr(c.datum, "name", "") or ell.name or "").split("(")[0].split("/")[0].strip()
+    if _anonymous(body):
+        # GDAL names a PDS3 or ISIS product's datum after its TARGET_NAME; a label without one
+        # leaves "D_". No other body's radius lies within 0.5 % of Mars's or the Moon's (Mars's
+        # own radii, 3389.5 to 3396.19 km, lie within 0.2 %), so the radius says which it is.
+        for known in (MARS, MOON):
+            if abs(radius / known.radius_m - 1) < 0.005:
+                return known
+        return Planet(f"unnamed body of radius {radius:g} m", radius, 0.0)
+    return Planet(body.lower(), radius, 0.0)
+
+
+def _anonymous(name: str) -> bool:
+    """A datum name that names no body: empty, or GDAL's and ESRI's bare prefixes."""
+    n = name.strip().lower()
+    for prefix in ("d_", "gcs_", "datum"):
+        if n.startswith(prefix):
+            n = n[len(prefix):]
+    return n.strip(" _") in ("", "unknown", "unnamed", "not specified", "not_specified", "undefined")
 
 
 def resolve_planet(spec, body: Planet | None) -> Planet:
