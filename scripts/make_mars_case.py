@@ -1,6 +1,6 @@
 """A Mars case shaped as missions publish their DEMs, built from this project's reference data.
 
-    python scripts/make_mars_case.py OUT [--locate N] [--detect N]
+    python scripts/make_mars_case.py OUT [--locate N] [--detect N] [--detector dp|net]
 
 Writes, in IAU_2015:49900 (Mars 2015 sphere, geographic), centred on Jezero (77.5 E, 18.4 N):
 - ``OUT/mola_like_200m.tif``: a ~200 km, 200 m "MOLA-like" DEM: the Alps SRTM tile's relief
@@ -13,7 +13,8 @@ printing each position error and the heading error against TRUE north (from the 
 ``heading_deg``, the truth's grid yaw plus the CRS's meridian convergence). With ``--detect N``,
 N acquisitions are also rendered from the stack (``skyfix simulate HIRISE MOLA``: navcam frames
 on a mast tilted 15 deg, a full turn, light dust) and located from the skylines skyfix detects in
-them (``skyfix locate ACQ --db DB --dem HIRISE --dem MOLA``), with the same two errors. A rerun
+them (``skyfix profile ACQ --detector D``, then ``skyfix locate --profile P --db DB --dem HIRISE
+--dem MOLA``), with the same two errors. A rerun
 keeps the DEMs, the database and rendered acquisitions already in OUT.
 """
 
@@ -91,6 +92,7 @@ def main(argv=None):
     ap.add_argument("--spacing-m", type=float, default=20.0)
     ap.add_argument("--detect", type=int, default=0,
                     help="acquisitions to render from the stack and locate from detected skylines")
+    ap.add_argument("--detector", default="dp", choices=("dp", "bayes", "net"))
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -147,10 +149,10 @@ def main(argv=None):
         print(f"{len(errs)} rovers: position error max {pe.max():.3f} m, heading error max "
               f"{he.max():.4f} deg (targets 1 m, 0.05 deg)")
     if args.detect:
-        detect_and_locate(out, stack, hi_p, mola_p, db, args.detect, half)
+        detect_and_locate(out, stack, hi_p, mola_p, db, args.detect, half, args.detector)
 
 
-def detect_and_locate(out, stack, hi_p, mola_p, db, n, half):
+def detect_and_locate(out, stack, hi_p, mola_p, db, n, half, detector="dp"):
     """Render ``n`` acquisitions from the stack and locate each from its detected skylines."""
     from skyfix.north import meridian_convergence_deg, true_heading_deg
 
@@ -168,10 +170,14 @@ def detect_and_locate(out, stack, hi_p, mola_p, db, n, half):
             if r.returncode:
                 print(r.stderr)
                 continue
-        fx = out / f"fix_detected_{i}.json"
+        prof, fx = out / f"profile_{detector}_{i}.json", out / f"fix_{detector}_{i}.json"
         t0 = time.time()
-        r = subprocess.run(sky + ["locate", str(acq), "--db", str(db), "--dem", str(hi_p), "--dem",
-                                  str(mola_p), "-o", str(fx), "--overwrite"], capture_output=True, text=True)
+        r = subprocess.run(sky + ["profile", str(acq), "--detector", detector, "-o", str(prof),
+                                  "--overwrite"], capture_output=True, text=True)
+        if r.returncode == 0:
+            r = subprocess.run(sky + ["locate", "--profile", str(prof), "--db", str(db), "--dem", str(hi_p),
+                                      "--dem", str(mola_p), "-o", str(fx), "--overwrite"],
+                               capture_output=True, text=True)
         if r.returncode:
             print(f"acquisition {i}: {r.stderr.strip().splitlines()[-1]}")
             continue
@@ -180,11 +186,11 @@ def detect_and_locate(out, stack, hi_p, mola_p, db, n, half):
         pe = math.hypot(fix["x"] - tx, fix["y"] - ty)
         he = abs((fix["heading_deg"] - true_h + 180) % 360 - 180)
         errs.append((pe, he, fix["confidence"]))
-        print(f"detected {i}: position error {pe:.3f} m, heading error vs true north {he:.4f} deg, "
+        print(f"{detector} {i}: position error {pe:.3f} m, heading error vs true north {he:.4f} deg, "
               f"confidence {fix['confidence']:.2f} ({time.time() - t0:.0f} s)", flush=True)
     if errs:
         pe, he, c = np.array(errs).T
-        print(f"{len(errs)} acquisitions with detection: position error median {np.median(pe):.2f} m, "
+        print(f"{len(errs)} acquisitions, skylines detected by {detector}: position error median {np.median(pe):.2f} m, "
               f"max {pe.max():.2f} m; heading error median {np.median(he):.3f} deg, max "
               f"{he.max():.3f} deg; within 1 m {int(np.sum(pe <= 1))}/{len(errs)}")
 
