@@ -112,9 +112,9 @@ def main(argv=None):
            "-o", str(db), "--bounds", str(-half), str(-half), str(half), str(half),
            "--spacing-m", str(args.spacing_m), "--workers", "0", "--no-progress"]
     t0 = time.time()
-    r = subprocess.run(cmd, capture_output=True, text=True)  # resumes (or finds it complete)
+    r = subprocess.run(cmd, capture_output=True, text=True)  # resumes an interrupted build
     print((r.stdout + r.stderr).strip().splitlines()[-1], f"({time.time() - t0:.0f} s)", flush=True)
-    if r.returncode:
+    if r.returncode and "already a complete database" not in r.stderr:
         raise SystemExit(r.stderr)
     from skyfix.formats import write_profile_json
     from skyfix.north import meridian_convergence_deg, true_heading_deg
