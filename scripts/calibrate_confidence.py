@@ -192,6 +192,85 @@ def fit_key(rows, key, features, c_reg=1.0, folds=5, seed=0):
     return model, cv
 
 
+#: the 1-sigma models' features: the fix's own sigma and how far its residuals exceed the noise
+#: (a map that is not the world, a detection off by pixels: the score surface's curvature alone
+#: does not see either)
+SIGMA_FEATURES = ("log_sigma", "log_rms_over_noise", "log_ratio", "log_relief", "observed_fraction", "tilt_deg")
+#: claimed coverage of the 1- and 2-sigma: radial (position: sigma = sqrt(trace), a circular
+#: Gaussian) or 1-D (heading)
+CLAIM = {True: (1 - math.exp(-1.0), 1 - math.exp(-4.0)), False: (0.6827, 0.9545)}
+
+
+def _sigma_nll(c, x, err, radial, ridge=1e-3):
+    """Negative log-likelihood of the errors under log s = c0 + c.x (s per axis; radial errors
+    Rayleigh, 1-D errors half-normal), with a small ridge on the slopes."""
+    log_s = c[0] + x @ c[1:]
+    s2 = np.exp(2 * log_s)
+    e2 = err ** 2
+    nll = (2 * log_s + e2 / (2 * s2)) if radial else (log_s + e2 / (2 * s2))
+    return float(np.sum(nll) + ridge * np.sum(c[1:] ** 2))
+
+
+def _fit_sigma_coef(x, err, radial):
+    from scipy.optimize import minimize
+
+    c0 = np.zeros(x.shape[1] + 1)
+    c0[0] = float(np.log(np.sqrt(np.mean(err ** 2)) + 1e-6))
+    return minimize(_sigma_nll, c0, args=(x, err, radial), method="BFGS").x
+
+
+def sigma_out(c, x, radial):
+    """The 1-sigma skyfix reports: sqrt(trace) = sqrt(2) s for a position, s for a heading."""
+    s = np.exp(c[0] + x @ c[1:])
+    return np.sqrt(2.0) * s if radial else s
+
+
+def fit_sigma(rows, key, out=print):
+    """1-sigma model for one key, fitted by maximum likelihood on the fixes that found the right
+    basin (error within 10 tolerances: beyond, telling right from wrong is the confidence's job),
+    and its coverage held out by site (each DEM in turn left out). Returns the model dict."""
+    radial = key != "heading"
+    tol = TOLERANCE[key]
+    rk = [r for r in rows if r.get("err") is not None and math.isfinite(r["err"])
+          and r["err"] <= 10 * tol and all(r.get(f) is not None for f in SIGMA_FEATURES)]
+    if len(rk) < 10:
+        out(f"  sigma: {len(rk)} cases, too few to fit")
+        return None
+    x = np.array([[r[f] for f in SIGMA_FEATURES] for r in rk], float)
+    err = np.array([r["err"] for r in rk], float)
+    raw = np.exp(x[:, 0])  # what skyfix reported before this model
+    sites = np.array([r["dem"] for r in rk])
+    cv = np.empty(len(rk))
+    for site in sorted(set(sites)):
+        te = sites == site
+        if te.all():
+            cv[te] = sigma_out(_fit_sigma_coef(x, err, radial), x[te], radial)
+            continue
+        cv[te] = sigma_out(_fit_sigma_coef(x[~te], err[~te], radial), x[te], radial)
+    cv = np.maximum(raw, cv)  # as skyfix applies it: never below the fit's own sigma
+    c = _fit_sigma_coef(x, err, radial)
+    c1, c2 = CLAIM[radial]
+    unit = "m" if radial else "deg"
+
+    def cover(sig, k):
+        return float(np.mean(err <= k * sig))
+
+    out(f"  1-sigma of the {len(rk)} fixes within {10 * tol:g} {unit}, held out by site "
+        f"({', '.join(sorted(set(sites)))}); claimed: {c1:.0%} within 1 sigma, {c2:.0%} within 2")
+    out(f"    as the fit's curvature gives it: {cover(raw, 1):.0%} within 1 sigma, {cover(raw, 2):.0%} within 2")
+    out(f"    calibrated (log s = {c[0]:+.2f} " + " ".join(f"{ci:+.2f} {f}" for ci, f in zip(c[1:], SIGMA_FEATURES))
+        + f"): {cover(cv, 1):.0%} within 1 sigma, {cover(cv, 2):.0%} within 2; median sigma "
+          f"{np.median(raw):.3g} -> {np.median(cv):.3g} {unit}")
+    for site in sorted(set(sites)):
+        te = sites == site
+        out(f"    held-out {site}: {int(te.sum())} fixes, {np.mean(err[te] <= cv[te]):.0%} within 1 sigma, "
+            f"{np.mean(err[te] <= 2 * cv[te]):.0%} within 2")
+    return {"features": list(SIGMA_FEATURES), "intercept": float(c[0]), "coef": [float(v) for v in c[1:]],
+            "radial": radial, "n_cases": len(rk),
+            "cv_within_1_sigma": cover(cv, 1), "cv_within_2_sigma": cover(cv, 2),
+            "claimed": [c1, c2]}
+
+
 def cmd_fit(args):
     from skyfix._io import write_json
     from skyfix.pose import FEATURES
@@ -224,6 +303,9 @@ def cmd_fit(args):
         reliability(cv, y)
         model["cv_conf_ge_0.9"] = {"n": int((cv >= 0.9).sum()),
                                    "share_correct": float(y[cv >= 0.9].mean()) if (cv >= 0.9).any() else None}
+        sig = fit_sigma(rk, key)
+        if sig is not None:
+            model["sigma"] = sig
         if len(rk) < args.min_cases:
             print(f"  not written: {len(rk)} < --min-cases {args.min_cases} (locate keeps its capped fallback)")
         else:

@@ -12,8 +12,8 @@ from ..errors import ParameterError
 from ..match import prepare_query, score_profiles, tilt_determinable
 from ..north import meridian_convergence_deg, true_heading_deg
 from .attitude import fit_attitude
-from .confidence import (confidence_features, confidence_from_features, residual_correlation_bins,
-                         structureless_cap)
+from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
+                         residual_correlation_bins, structureless_cap)
 from .fix import DETERMINED_SIGMA_DEG, HeadingFix, crs_and_lonlat
 from .forward import body_profile, harmonic_tilt, residual_profile
 from .scoring import profile_arrays
@@ -92,7 +92,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     corr = residual_correlation_bins(residual_profile(q, world, att, prior_pitch_deg=prior_pitch_deg,
                                                       prior_roll_deg=prior_roll_deg))
     inflate = math.sqrt(max(1.0, corr))
-    hsig = att.yaw_sigma_deg * inflate
+    hsig = calibrated_sigma(att.yaw_sigma_deg * inflate, feat, model, "heading")
     psig, rsig = att.pitch_sigma_deg * inflate, att.roll_sigma_deg * inflate
     determined = {k: bool(math.isfinite(v) and v <= DETERMINED_SIGMA_DEG)
                   for k, v in (("heading", hsig), ("pitch", psig), ("roll", rsig))}

@@ -36,8 +36,8 @@ from ..errors import ParameterError, SkyfixError
 from ..match import match_database, prepare_query, tilt_determinable
 from ..north import meridian_convergence_deg, true_heading_deg
 from ..progress import stage
-from .confidence import (confidence_features, confidence_from_features, position_sigma,
-                         residual_correlation_bins, structureless_cap)
+from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
+                         position_sigma, residual_correlation_bins, structureless_cap)
 from .config import PoseConfig
 from .fix import Fix, crs_and_lonlat
 from .refine import inside_dem, prior_grid, refine_candidates
@@ -100,7 +100,7 @@ def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_de
                                float(obs.mean()), psig, tilt)
     conf = structureless_cap(confidence_from_features(feat, model, key), relief, noise)
     return dict(x=best["x"], y=best["y"], heading=att.yaw_deg, pitch=att.pitch_deg,
-                roll=att.roll_deg, cost=best["cost"], psig=psig,
+                roll=att.roll_deg, cost=best["cost"], psig=calibrated_sigma(psig, feat, model, key),
                 # the fit's sigma counts every bin as independent; neighbouring residuals are
                 # not (the same correction as the position sigma's)
                 hsig=att.yaw_sigma_deg * math.sqrt(max(1.0, corr)),
@@ -252,6 +252,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         feat = confidence_features(best_s, other, rms, noise, relief, float(np.isfinite(q).mean()),
                                    psig, tilt)
         conf = structureless_cap(confidence_from_features(feat, model, "locate"), relief, noise)
+        psig = calibrated_sigma(psig, feat, model, "locate")
     degenerate = degenerate_search(db, dem, fx, fy, prior_xy, prior_radius_m,
                                    config.tolerance_m if db is not None else 1.0,
                                    config.grid_step_m)
