@@ -34,6 +34,8 @@ def main(argv=None):
     ap.add_argument("--stop-conditions", action="append", default=[])
     ap.add_argument("--mode", default="frames")
     ap.add_argument("--map-errors", action="store_true")
+    ap.add_argument("--db", help="skyline database for the leg-end fixes (default: DEM only, in a "
+                                 "disc around the prediction)")
     ap.add_argument("--world-dem")
     args = ap.parse_args(argv)
     out = Path(args.out)
@@ -49,8 +51,8 @@ def main(argv=None):
         cmd += ["--world-dem", args.world_dem] if args.world_dem else []
         subprocess.run(cmd, check=True)
     t0 = time.perf_counter()
-    proc = subprocess.run(sky + ["traverse", str(trav), "--dem", args.dem, "-o", str(res)],
-                          capture_output=True, text=True)
+    proc = subprocess.run(sky + ["traverse", str(trav), "--dem", args.dem, "-o", str(res)]
+                          + (["--db", args.db] if args.db else []), capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         print(proc.stderr)
@@ -67,7 +69,8 @@ def main(argv=None):
     world = ("world = map" if not (args.map_errors or args.world_dem) else
              "world: map errors" if args.map_errors else f"world: {Path(args.world_dem).name}")
     print(f"load average {load0:.2f} -> {os.getloadavg()[0]:.2f}; {Path(args.dem).name}, "
-          f"{len(rows)} stops over {args.length_m:g} m, seed {args.seed}, {args.mode}, {world}; "
+          f"{len(rows)} stops over {args.length_m:g} m, seed {args.seed}, {args.mode}, {world}, "
+          f"fixes {'with the database ' + Path(args.db).name if args.db else 'on the DEM alone'}; "
           f"traverse wall {wall:.0f} s")
     print(f"updates: {upd.count('heading')} heading, {upd.count('position')} position, "
           f"{upd.count('rejected')} rejected, {upd.count('none')} none; operator requests at "
