@@ -71,7 +71,8 @@ def case_pull(dem, case_dir: Path, *, render_bins=1440, h=0.5, dem_sigma_m=2.0, 
     wgt = 1.0 / (noise_deg ** 2 + sig ** 2)
     for label, cols, w in (("xy", (jx, jy, one), None), ("xyz", (jx, jy, one, jz), None),
                            ("xyz_weighted", (jx, jy, one, jz), wgt),
-                           ("xyz_near", (jx, jy, one, jz), np.minimum(1.0, (d / (10 * dem.cell_m)) ** 2))):
+                           ("xyz_near", (jx, jy, one, jz), np.minimum(1.0, (d / (10 * dem.cell_m)) ** 2)),
+                           ("xyz_floor", (jx, jy, one, jz), 1.0 / (0.08 ** 2 + sig ** 2))):
         J = np.stack([c[ok] for c in cols], axis=1)
         W = np.ones(ok.sum()) if w is None else w[ok]
         N = J.T @ (J * W[:, None])
