@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .image import (downscale, downscale_factor, downscale_valid, fill_invalid, resample_to,
-                    to_float_gray, trusted)
+from .image import (downscale, downscale_factor, downscale_rgb, downscale_valid, fill_invalid,
+                    resample_to, to_float_gray, trusted)
 from .options import DpOptions
 from .path import BIG, column_prefix, solve_path
 from .refine import refine_full, skyline_allowed
@@ -115,7 +115,7 @@ def detect_dp(img, valid, opt: DpOptions, model=None):
             # the cloud rule needs colour: a grey-level "brighter than the sky" took sunlit
             # ground for cloud (see DpOptions.cloud_llr)
             if opt.cloud_llr > 0 and not grey:
-                rgb_s = downscale(np.asarray(img[..., :3], np.float32), f)
+                rgb_s = downscale_rgb(img, f)
                 cloud = _cloud_like(tex, lo_s, rgb_s, valid_s, opt.cloud_llr,
                                     min_share=opt.cloud_sure_share)
                 tex = np.where(cloud, 0.0, tex)

@@ -79,13 +79,22 @@ def trusted(valid, margin=3):
     return cv2.erode(valid.astype(np.uint8), k, borderType=cv2.BORDER_REPLICATE).astype(bool)
 
 
+#: rows converted at a time where a whole-image float copy is not needed
+ROW_BAND = 256
+
+
 def to_float_gray(img):
     """The grey level as float32 on the 0-255 scale (uint16 rescaled, float in [0, 1] stretched),
     luma weights 0.299, 0.587, 0.114 for RGB."""
     if img.ndim == 2:
         g = img.astype(np.float32)
     else:
-        g = img[..., :3].astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+        # a band of rows at a time: the whole image as float32 RGB was 48 MB at 4 MP, three times
+        # the grey it makes (same values: each pixel's dot product is computed alike)
+        w = np.array([0.299, 0.587, 0.114], np.float32)
+        g = np.empty(img.shape[:2], np.float32)
+        for r in range(0, img.shape[0], ROW_BAND):
+            g[r:r + ROW_BAND] = img[r:r + ROW_BAND, :, :3].astype(np.float32) @ w
     if img.dtype == np.uint16:
         g *= 255.0 / 65535.0
     elif img.dtype.kind == "f" and g.size and np.nanmax(g) <= 1.0:
@@ -160,6 +169,15 @@ def downscale(arr, f):
         return arr
     H, W = arr.shape[:2]
     return cv2.resize(arr, (max(1, W // f), max(1, H // f)), interpolation=cv2.INTER_AREA)
+
+
+def downscale_rgb(img, f):
+    """The first three channels of ``img`` as float32, shrunk by ``f`` as :func:`downscale` does,
+    one channel at a time (the same values; a full-resolution float32 RGB copy is not made)."""
+    if f == 1:
+        return np.asarray(img[..., :3], np.float32)
+    return np.stack([downscale(np.ascontiguousarray(img[..., c], dtype=np.float32), f)
+                     for c in range(3)], axis=-1)
 
 
 def downscale_valid(valid, f):

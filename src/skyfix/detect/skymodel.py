@@ -27,8 +27,8 @@ import numba
 import numpy as np
 
 from ..errors import ParameterError
-from .image import (as_gray_rgb, downscale, downscale_factor, downscale_valid, fill_invalid,
-                    to_float_gray, trusted, valid_mask)
+from .image import (as_gray_rgb, downscale, downscale_factor, downscale_rgb, downscale_valid,
+                    fill_invalid, to_float_gray, trusted, valid_mask)
 
 FEATURE_NAMES = (
     "log_gray_rel_image", "log_gray_rel_coltop", "log_local_mean_rel",
@@ -343,7 +343,7 @@ def sky_inputs(img, valid, gray, model_pixels):
     g_m = downscale(gray, fm)
     v_m = downscale_valid(valid, fm)
     # chroma needs no filling: it is per pixel, and invalid pixels never enter the region term
-    rgb_m = downscale(np.asarray(img[..., :3], np.float32), fm) if img.ndim == 3 else None
+    rgb_m = downscale_rgb(img, fm) if img.ndim == 3 else None
     return sky_features(g_m, rgb_m, v_m), v_m, fm
 
 
