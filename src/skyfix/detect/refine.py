@@ -28,9 +28,10 @@ def vertical_step(gray):
     import cv2
 
     sm = cv2.GaussianBlur(np.asarray(gray, np.float32), (0, 0), 1.0)
-    step = np.zeros_like(sm)
-    step[1:] = np.abs(sm[1:] - sm[:-1])
-    return step
+    step = np.empty_like(sm)
+    step[0] = 0.0
+    np.subtract(sm[1:], sm[:-1], out=step[1:])  # in place: no full-size temporaries
+    return np.abs(step, out=step)
 
 
 def refine_full(gray, valid, top_full, bottom_full, f, refine_band: float):
@@ -57,14 +58,26 @@ def refine_full(gray, valid, top_full, bottom_full, f, refine_band: float):
     lo = int(a[have].min())
     hi = int(b[have].max()) + 1
     rows = np.arange(lo, hi)[:, None]
-    inband = (rows >= a[None, :]) & (rows <= b[None, :])
-    sub_ok = ok[lo:hi] & inband
-    scale = np.percentile(step[ok], 99.5) if ok.any() else 1.0
+    sub_ok = ok[lo:hi] & (rows >= a[None, :]) & (rows <= b[None, :])
+    # step[ok] is a copy already: the percentile may partition it in place
+    scale = np.percentile(step[ok], 99.5, overwrite_input=True) if ok.any() else 1.0
+    del ok
     # prefer the coarse span (its centre) a little, so texture steps nearby do not pull the row
     mid = 0.5 * (np.nan_to_num(top_full) + np.nan_to_num(bottom_full) + f - 1)
     span = 0.5 * (np.nan_to_num(bottom_full) - np.nan_to_num(top_full) + f) + 1.0
-    off_c = np.clip(np.abs(rows - mid[None, :]) - span[None, :], 0, None) / max(m, 1)
-    cost = np.where(sub_ok, 1.0 - np.clip(step[lo:hi] / max(scale, 1e-6), 0, 1) + 0.3 * off_c, BIG)
+    # cost = 1 - clip(step / scale) + 0.3 off-centre, BIG outside the band: built in place, the
+    # band being up to the image's height for a skyline that spans it
+    cost = rows - mid[None, :]
+    np.abs(cost, out=cost)
+    cost -= span[None, :]
+    np.clip(cost, 0, None, out=cost)
+    cost /= max(m, 1)
+    cost *= 0.3
+    lvl = np.clip(step[lo:hi] / max(scale, 1e-6), 0, 1)
+    np.subtract(1.0, lvl, out=lvl)
+    cost += lvl
+    del lvl
+    cost[~sub_ok] = BIG
     # columns the coarse pass called no-skyline stay so; the others follow the band optimum
     none = np.where(have, BIG, 0.0)
     vert = np.full_like(cost, BIG)
@@ -81,6 +94,7 @@ def refine_full(gray, valid, top_full, bottom_full, f, refine_band: float):
     safe = np.where(den < -1e-6, den, -1.0)
     off = np.where(den < -1e-6, 0.5 * (s0 - s2) / safe, 0.0)
     out[cols] = r + np.clip(off, -0.5, 0.5)
+    del step, cost, vert
     g_row = cv2.GaussianBlur(np.asarray(gray, np.float32), (0, 0), sigmaX=1.0, sigmaY=0.01)
     _edge_crossing(g_row, valid, out)
     return out
