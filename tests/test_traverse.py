@@ -212,3 +212,31 @@ def test_odometry_steps_must_match_the_stops(tmp_path):
     (tmp_path / "x").mkdir()
     with pytest.raises(ParameterError, match="line 1: step 0 goes from 'stop_000' to 'stop_001'"):
         read_traverse(_folder(tmp_path / "x", [wrong, GOOD]))
+
+
+def test_a_middling_fix_is_taken_only_where_the_track_corroborates_it(tmp_path):
+    """A leg-end fix at confidence 0.4 (below 0.5, above the 0.25 floor): taken, with its sigma,
+    when it lies where the odometry predicts (inside the 95 % chi-square region); rejected when
+    it lies 7.5 m off, although the 99.9 % gate alone would have let that through; one at 0.1 is
+    never taken."""
+    def measure_with(dx, conf):
+        def heading(k, x, y, prior, window):
+            return Measurement(0.0, 0.1, 0.99, skyline_distance_m=3000.0)
+
+        def fix(k, x, y, r):
+            return Measurement(0.0, 0.1, conf if k == 10 else 0.99, dx if k == 10 else 0.0,
+                               50.0 * k, 1.0)
+
+        return Measure(heading, fix)
+
+    trav = _straight(12)
+    rows = run_traverse(trav, measure_with(0.0, 0.4), tmp_path / "a")
+    assert rows[10]["update"] == "position" and "corroborated" in rows[10]["reason"]
+    assert rows[10]["position_sigma_m"] < rows[9]["position_sigma_m"]
+    # 7.5 m off: a chi-square of ~12 with 3 dof given the prediction's ~2 m sigma and the fix's
+    # 1 m (inside 16.3, the 99.9 % gate; outside 7.8, the 95 % region)
+    rows = run_traverse(trav, measure_with(7.5, 0.4), tmp_path / "b")
+    assert rows[10]["update"] == "rejected" and "not corroborated" in rows[10]["reason"]
+    assert 7.81 < rows[10]["nis"] < 16.27
+    rows = run_traverse(trav, measure_with(0.0, 0.1), tmp_path / "c")
+    assert rows[10]["update"] == "rejected" and rows[10]["nis"] is None

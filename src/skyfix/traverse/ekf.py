@@ -19,6 +19,8 @@ import numpy as np
 
 #: chi-square quantiles at 99.9 %, by degrees of freedom: the innovation gate
 GATE_CHI2 = {1: 10.83, 3: 16.27}
+#: ... and at 95 %: the region where the track corroborates a measurement of middling confidence
+CORROBORATION_CHI2 = {1: 3.84, 3: 7.81}
 RAD = math.pi / 180.0
 
 
@@ -95,12 +97,12 @@ class PoseFilter:
         big_g = np.array([[s, -c, 0.0], [c, s, 0.0], [0.0, 0.0, 1.0]])
         self.cov = big_f @ self.cov @ big_f.T + big_g @ odo.cov @ big_g.T
 
-    def _update(self, h_mat, innov, r_mat, gate: bool) -> Update:
+    def _update(self, h_mat, innov, r_mat, gate: bool, chi2=None) -> Update:
         s_mat = h_mat @ self.cov @ h_mat.T + r_mat
         s_inv = np.linalg.inv(s_mat)
         nis = float(innov @ s_inv @ innov)
         dof = innov.size
-        ok = (not gate) or nis <= GATE_CHI2[dof]
+        ok = (not gate) or nis <= (chi2 or GATE_CHI2)[dof]
         if ok:
             k = self.cov @ h_mat.T @ s_inv
             self.state = self.state + k @ innov
@@ -110,17 +112,18 @@ class PoseFilter:
             self.cov = a @ self.cov @ a.T + k @ r_mat @ k.T
         return Update(ok, nis, dof, tuple(float(v) for v in innov))
 
-    def update_heading(self, heading_deg, sigma_deg, *, gate=True) -> Update:
-        """A heading measurement [deg from grid north] with its 1-sigma [deg]."""
+    def update_heading(self, heading_deg, sigma_deg, *, gate=True, chi2=None) -> Update:
+        """A heading measurement [deg from grid north] with its 1-sigma [deg]; ``chi2`` (by
+        degrees of freedom) replaces the 99.9 % gate."""
         innov = np.array([float(wrap_deg(heading_deg - self.state[2]))])
         return self._update(np.array([[0.0, 0.0, 1.0]]), innov,
-                            np.array([[float(sigma_deg) ** 2]]), gate)
+                            np.array([[float(sigma_deg) ** 2]]), gate, chi2)
 
     def update_pose(self, x, y, heading_deg, position_sigma_m, heading_sigma_deg, *,
-                    gate=True) -> Update:
+                    gate=True, chi2=None) -> Update:
         """A position and heading fix [m, m, deg from grid north] with 1-sigmas [m, deg]
-        (the position sigma a radius, the same on both axes)."""
+        (the position sigma a radius, the same on both axes); ``chi2`` as for a heading."""
         innov = np.array([float(x) - self.state[0], float(y) - self.state[1],
                           float(wrap_deg(heading_deg - self.state[2]))])
         r_mat = np.diag([position_sigma_m ** 2, position_sigma_m ** 2, heading_sigma_deg ** 2])
-        return self._update(np.eye(3), innov, r_mat, gate)
+        return self._update(np.eye(3), innov, r_mat, gate, chi2)

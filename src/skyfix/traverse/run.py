@@ -14,7 +14,9 @@ Per stop (the rover's activity diagram in the source study):
    doubled; a fix with the disc doubled); an error (no skyline detected, too few bins) is a
    failed detection;
 4. gate: the innovation's chi-square at 99.9 % against the filter's and the measurement's
-   covariance together; outside it, rejected (a confident-looking outlier);
+   covariance together; outside it, rejected (a confident-looking outlier). A measurement still
+   below ``min_confidence`` after the retry is taken only when the track corroborates it: its
+   confidence at least ``corroborated_confidence`` and its chi-square inside 95 %;
 5. an ``operator_request`` when the skyline cannot be detected at the stop, or after
    ``max_rejections`` stops in a row without an accepted update; the traverse goes on with
    odometry.
@@ -35,7 +37,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import SkyfixError
-from .ekf import PoseFilter, wrap_deg
+from .ekf import CORROBORATION_CHI2, PoseFilter, wrap_deg
 from .inputs import Traverse
 
 STOPS_FILE = "stops.jsonl"
@@ -43,7 +45,10 @@ STOPS_FILE = "stops.jsonl"
 
 @dataclass(frozen=True)
 class TraverseConfig:
-    """min_confidence : an update below it is retried once, then not used
+    """min_confidence : an update below it is retried once, then used only where the track
+        corroborates it: its confidence at least ``corroborated_confidence`` and its innovation
+        inside the 95 % chi-square region (the confidence is the fix's own, with no prior; a
+        fix 1 m off that the odometry's prediction agrees with is worth taking, with its sigma)
     max_rejections : stops in a row without an accepted update before the operator is asked
     heading_window_deg : [deg] the smallest half-window of a heading search
     max_position_sigma_m : [m] a position fix is due once the 1-sigma position exceeds it (the
@@ -55,6 +60,7 @@ class TraverseConfig:
     """
 
     min_confidence: float = 0.5
+    corroborated_confidence: float = 0.25
     max_rejections: int = 3
     heading_window_deg: float = 10.0
     max_position_sigma_m: float = 15.0
@@ -235,18 +241,27 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
                 else:
                     measured, retried = _attempt_heading(measure, k, filt, config)
                 conf = measured.confidence
-                if conf < config.min_confidence:
+                low = conf < config.min_confidence
+                if conf < min(config.corroborated_confidence, config.min_confidence):
                     update, reason = "rejected", f"confidence {conf:.2f} < {config.min_confidence}"
                 else:
                     hs = _heading_sigma(measured, filt, config)
+                    chi2 = CORROBORATION_CHI2 if low else None
                     if kind == "position":
                         ps = max(measured.position_sigma_m, config.position_sigma_floor_m)
-                        u = filt.update_pose(measured.x, measured.y, measured.heading_deg, ps, hs)
+                        u = filt.update_pose(measured.x, measured.y, measured.heading_deg, ps, hs,
+                                             chi2=chi2)
                     else:
-                        u = filt.update_heading(measured.heading_deg, hs)
+                        u = filt.update_heading(measured.heading_deg, hs, chi2=chi2)
                     nis = u.nis
                     update = kind if u.accepted else "rejected"
-                    if not u.accepted:
+                    if low and u.accepted:
+                        reason = (f"confidence {conf:.2f} < {config.min_confidence}, corroborated by "
+                                  f"the track (chi-square {u.nis:.1f} with {u.dof} dof, inside 95 %)")
+                    elif low:
+                        reason = (f"confidence {conf:.2f} < {config.min_confidence} and not corroborated "
+                                  f"by the track (chi-square {u.nis:.1f} with {u.dof} dof, outside 95 %)")
+                    elif not u.accepted:
                         reason = (f"innovation outside the 99.9 % gate (chi-square {u.nis:.1f} "
                                   f"with {u.dof} dof): the measurement disagrees with the track")
         except SkyfixError as e:
