@@ -218,7 +218,7 @@ def test_a_middling_fix_is_taken_only_where_the_track_corroborates_it(tmp_path):
     """A leg-end fix at confidence 0.4 (below 0.5, above the 0.25 floor): taken, with its sigma,
     when it lies where the odometry predicts (inside the 95 % chi-square region); rejected when
     it lies 7.5 m off, although the 99.9 % gate alone would have let that through; one at 0.1 is
-    never taken."""
+    never taken. A stop whose fix is not taken still gives its heading."""
     def measure_with(dx, conf):
         def heading(k, x, y, prior, window):
             return Measurement(0.0, 0.1, 0.99, skyline_distance_m=3000.0)
@@ -236,7 +236,28 @@ def test_a_middling_fix_is_taken_only_where_the_track_corroborates_it(tmp_path):
     # 7.5 m off: a chi-square of ~12 with 3 dof given the prediction's ~2 m sigma and the fix's
     # 1 m (inside 16.3, the 99.9 % gate; outside 7.8, the 95 % region)
     rows = run_traverse(trav, measure_with(7.5, 0.4), tmp_path / "b")
-    assert rows[10]["update"] == "rejected" and "not corroborated" in rows[10]["reason"]
-    assert 7.81 < rows[10]["nis"] < 16.27
+    why = rows[10]["reason"]
+    assert why.startswith("position fix rejected") and "not corroborated" in why
+    chi2 = float(why.split("chi-square ")[1].split(" ")[0])
+    assert 7.81 < chi2 < 16.27 and "with 3 dof" in why
+    # the stop still gives its heading, and the fix stays owed to the next stop
+    assert rows[10]["update"] == "heading" and rows[10]["fix_owed"]
+    assert rows[11]["attempted"] == "position" and rows[11]["update"] == "position"
     rows = run_traverse(trav, measure_with(0.0, 0.1), tmp_path / "c")
-    assert rows[10]["update"] == "rejected" and rows[10]["nis"] is None
+    assert rows[10]["reason"].startswith("position fix rejected (confidence 0.10 < 0.5)")
+    assert rows[11]["update"] == "position"
+
+
+def test_the_operator_is_asked_when_the_owed_fix_keeps_failing_though_headings_are_taken(tmp_path):
+    def heading(k, x, y, prior, window):
+        return Measurement(0.0, 0.1, 0.99, skyline_distance_m=3000.0)
+
+    def fix(k, x, y, r):
+        return Measurement(0.0, 0.1, 0.1 if k >= 10 else 0.99, 0.0, 50.0 * k, 1.0)
+
+    rows = run_traverse(_straight(16), Measure(heading, fix), tmp_path)
+    assert [r["update"] for r in rows[10:16]] == ["heading"] * 6  # every stop keeps its heading
+    assert all(r["attempted"] == "position" for r in rows[10:16])
+    asked = [k for k, r in enumerate(rows) if r["operator_request"]]
+    assert asked == [12, 15]  # every third fix not taken
+    assert "3 position fixes in a row not taken" in rows[12]["operator_request"]["reason"]

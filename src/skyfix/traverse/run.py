@@ -128,6 +128,33 @@ def _attempt_fix(measure, k, filt, cfg):
     return m, retried
 
 
+def _apply(filt: PoseFilter, kind: str, m: Measurement, cfg) -> tuple[str, str, float | None]:
+    """Update ``filt`` with measurement ``m`` of ``kind`` (``heading`` or ``position``) when it
+    passes: its confidence, or the track's corroboration, and the innovation gate. Returns
+    (update: ``kind`` or ``rejected``, reason ('' when taken plainly), chi-square or None)."""
+    conf = m.confidence
+    low = conf < cfg.min_confidence
+    if conf < min(cfg.corroborated_confidence, cfg.min_confidence):
+        return "rejected", f"confidence {conf:.2f} < {cfg.min_confidence}", None
+    hs = _heading_sigma(m, filt, cfg)
+    chi2 = CORROBORATION_CHI2 if low else None
+    if kind == "position":
+        ps = max(m.position_sigma_m, cfg.position_sigma_floor_m)
+        u = filt.update_pose(m.x, m.y, m.heading_deg, ps, hs, chi2=chi2)
+    else:
+        u = filt.update_heading(m.heading_deg, hs, chi2=chi2)
+    if low and u.accepted:
+        return kind, (f"confidence {conf:.2f} < {cfg.min_confidence}, corroborated by the track "
+                      f"(chi-square {u.nis:.1f} with {u.dof} dof, inside 95 %)"), u.nis
+    if low:
+        return "rejected", (f"confidence {conf:.2f} < {cfg.min_confidence} and not corroborated by "
+                            f"the track (chi-square {u.nis:.1f} with {u.dof} dof, outside 95 %)"), u.nis
+    if not u.accepted:
+        return "rejected", (f"innovation outside the 99.9 % gate (chi-square {u.nis:.1f} with "
+                            f"{u.dof} dof): the measurement disagrees with the track"), u.nis
+    return kind, "", u.nis
+
+
 def _heading_sigma(m: Measurement, filt: PoseFilter, cfg) -> float:
     s = max(m.heading_sigma_deg, cfg.heading_sigma_floor_deg)
     if m.x is None and m.skyline_distance_m:
@@ -206,8 +233,9 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
         last = rows[-1]
         filt = PoseFilter(*last["filter"]["state"], last["filter"]["cov"])
         driven, owed, misses = last["since_fix_m"], last["fix_owed"], last["misses_in_a_row"]
+        fix_misses = last.get("fix_misses_in_a_row", 0)
     else:
-        filt, driven, owed, misses = None, 0.0, False, 0
+        filt, driven, owed, misses, fix_misses = None, 0.0, False, 0, 0
     for k in range(len(rows), len(trav.stops)):
         name = trav.stops[k]
         if k == 0:
@@ -241,29 +269,18 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
                 else:
                     measured, retried = _attempt_heading(measure, k, filt, config)
                 conf = measured.confidence
-                low = conf < config.min_confidence
-                if conf < min(config.corroborated_confidence, config.min_confidence):
-                    update, reason = "rejected", f"confidence {conf:.2f} < {config.min_confidence}"
-                else:
-                    hs = _heading_sigma(measured, filt, config)
-                    chi2 = CORROBORATION_CHI2 if low else None
-                    if kind == "position":
-                        ps = max(measured.position_sigma_m, config.position_sigma_floor_m)
-                        u = filt.update_pose(measured.x, measured.y, measured.heading_deg, ps, hs,
-                                             chi2=chi2)
-                    else:
-                        u = filt.update_heading(measured.heading_deg, hs, chi2=chi2)
-                    nis = u.nis
-                    update = kind if u.accepted else "rejected"
-                    if low and u.accepted:
-                        reason = (f"confidence {conf:.2f} < {config.min_confidence}, corroborated by "
-                                  f"the track (chi-square {u.nis:.1f} with {u.dof} dof, inside 95 %)")
-                    elif low:
-                        reason = (f"confidence {conf:.2f} < {config.min_confidence} and not corroborated "
-                                  f"by the track (chi-square {u.nis:.1f} with {u.dof} dof, outside 95 %)")
-                    elif not u.accepted:
-                        reason = (f"innovation outside the 99.9 % gate (chi-square {u.nis:.1f} "
-                                  f"with {u.dof} dof): the measurement disagrees with the track")
+                update, reason, nis = _apply(filt, kind, measured, config)
+                if kind == "position" and update == "rejected":
+                    # the fix stays owed, but the heading need not drift meanwhile: the stop's
+                    # skyline still gives one at the predicted position
+                    fix_reason = reason
+                    measured, _ = _attempt_heading(measure, k, filt, config)
+                    conf = measured.confidence
+                    update, reason, nis = _apply(filt, "heading", measured, config)
+                    reason = (f"position fix rejected ({fix_reason}); heading "
+                              + ("taken" + (f": {reason}" if reason else "") if update == "heading"
+                                 else f"rejected too: {reason}"))
+                    fix_misses += 1
         except SkyfixError as e:
             if filt is None:
                 raise SkyfixError(f"stop '{name}': {e}") from None
@@ -271,21 +288,27 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
             request = {"reason": f"no usable skyline at this stop: {reason}",
                        "help": "draw the skyline by hand in one image, or drive on to where the "
                                "skyline is clearer and acquire again"}
+        if update == "none" and kind == "position":
+            fix_misses += 1
         if update in ("heading", "position"):
             misses = 0
             if update == "position":
-                driven, owed = 0.0, False
+                driven, owed, fix_misses = 0.0, False, 0
         else:
             misses += 1
-            if kind == "position":
-                owed = True  # the fix is still due at the next stop
-            if request is None and misses >= config.max_rejections:
-                request = {"reason": f"{misses} stops in a row without an accepted skyline update "
-                                     f"(last: {reason})",
-                           "help": "check the skyline detections, draw one by hand, or move the "
-                                   "rover where the skyline is clearer; the position is "
-                                   f"odometry only, 1-sigma {filt.position_sigma_m:.1f} m"}
-        after = 0 if request is not None else misses  # asked: the count starts again
+        if kind == "position" and update != "position":
+            owed = True  # the fix is still due at the next stop
+        if request is None and (misses >= config.max_rejections
+                                or fix_misses >= config.max_rejections):
+            what = (f"{misses} stops in a row without an accepted skyline update"
+                    if misses >= config.max_rejections else
+                    f"{fix_misses} position fixes in a row not taken")
+            request = {"reason": f"{what} (last: {reason})",
+                       "help": "check the skyline detections, draw one by hand, or move the "
+                               "rover where the skyline is clearer; the position is "
+                               f"odometry only, 1-sigma {filt.position_sigma_m:.1f} m"}
+        after = 0 if request is not None else misses  # asked: the counts start again
+        fix_after = 0 if request is not None else fix_misses
         meas = None
         if measured is not None:
             meas = {"heading_deg_grid": measured.heading_deg, "heading_sigma_deg": measured.heading_sigma_deg,
@@ -293,10 +316,10 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
         d = _record(k, name, filt, convergence, update=update, attempted=kind,
                     confidence=conf, nis=nis, retried=retried, reason=reason or None,
                     operator_request=request, measurement=meas, since_fix_m=driven,
-                    fix_owed=owed, misses_in_a_row=after,
+                    fix_owed=owed, misses_in_a_row=after, fix_misses_in_a_row=fix_after,
                     seconds=round(time.perf_counter() - t0, 3))
         _append(path, rows, d)
-        misses = after
+        misses, fix_misses = after, fix_after
         if on_stop is not None:
             on_stop(k, d)
     return rows
