@@ -29,7 +29,11 @@ def test_ctrl_c_is_one_line_and_the_rerun_resumes_byte_for_byte(tmp_path):
     out = tmp_path / "db.zarr"
     cmd = [sys.executable, "-m", "skyfix.cli.main", "build-db", str(dem), "-o", str(out), *ARGS,
            "--workers", "2", "--block-positions", "16"]
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # Ctrl-C's default action in the child, whatever this process inherited: a test runner
+    # started in the background by a non-interactive shell has SIGINT ignored, a child inherits
+    # that, and Python then installs no KeyboardInterrupt handler (the build ran to its end)
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     markers = out / "_skyfix" / "blocks"
     t0 = time.time()
     while time.time() - t0 < 120 and p.poll() is None:
