@@ -280,7 +280,6 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
                     reason = (f"position fix rejected ({fix_reason}); heading "
                               + ("taken" + (f": {reason}" if reason else "") if update == "heading"
                                  else f"rejected too: {reason}"))
-                    fix_misses += 1
         except SkyfixError as e:
             if filt is None:
                 raise SkyfixError(f"stop '{name}': {e}") from None
@@ -288,8 +287,6 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
             request = {"reason": f"no usable skyline at this stop: {reason}",
                        "help": "draw the skyline by hand in one image, or drive on to where the "
                                "skyline is clearer and acquire again"}
-        if update == "none" and kind == "position":
-            fix_misses += 1
         if update in ("heading", "position"):
             misses = 0
             if update == "position":
@@ -298,6 +295,7 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
             misses += 1
         if kind == "position" and update != "position":
             owed = True  # the fix is still due at the next stop
+            fix_misses += 1
         if request is None and (misses >= config.max_rejections
                                 or fix_misses >= config.max_rejections):
             what = (f"{misses} stops in a row without an accepted skyline update"
