@@ -100,9 +100,10 @@ def db_area(db, margin_m: float = 0.0):
 def map_offset_of(case_dir: Path) -> tuple[float, float]:
     """(dx, dy) [m] from a simulated case's truth to where its terrain lies on the map (0, 0 when
     the world was the map): read from the simulator's record, as the truth is."""
+    from .simulate.world import recorded_map_offset
+
     data = json.loads((Path(case_dir) / "acquisition.json").read_text())
-    off = ((data.get("simulation") or {}).get("map_errors") or {}).get("map_offset_m") or (0.0, 0.0)
-    return float(off[0]), float(off[1])
+    return recorded_map_offset(data.get("simulation"))
 
 
 def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.random.Generator,

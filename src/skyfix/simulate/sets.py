@@ -19,7 +19,7 @@ from ..planets import resolve_planet
 from .acquisition import (PANO_HEIGHT, PANO_WIDTH, check_render_options, check_seed,
                           simulate_acquisition)
 from .folders import check_out_folder, staged_folder
-from .world import MapErrors, map_offset, world_dem
+from .world import MapErrors, world_dem, world_record
 
 
 
@@ -164,13 +164,9 @@ def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
                      camera_height_m=camera_height_m, planet=planet)
     if map_errors is None and str(name).upper() in MAP_ERROR_SETS and world is None:
         map_errors = MapErrors()
-    sim_meta = {}
-    if world is not None:
-        sim_meta["world"] = {"source": world.source, "sha256": world.checksum}
-    elif map_errors is not None:
+    sim_meta = world_record(map_errors, seed, world)
+    if world is None and map_errors is not None:
         world = world_dem(dem, map_errors, seed)
-        sim_meta["map_errors"] = {**map_errors.to_dict(), "seed": int(seed),
-                                  "map_offset_m": list(map_offset(map_errors, seed))}
     render = world if world is not None else dem
     out = check_out_folder(out, overwrite)
     with staged_folder(out, overwrite) as tmp:

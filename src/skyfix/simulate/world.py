@@ -66,6 +66,25 @@ def map_offset(errors: MapErrors, seed: int) -> tuple[float, float]:
     return (-errors.shift_m * math.sin(a), -errors.shift_m * math.cos(a))
 
 
+def world_record(map_errors: MapErrors | None, seed: int, world: Dem | None = None) -> dict:
+    """What a simulation records (under ``simulation``) about the world it rendered when that was
+    not the map: ``{"world": source, sha256}`` for a second DEM, ``{"map_errors": the errors,
+    seed and map_offset_m}`` for :func:`world_dem`'s, ``{}`` when the world was the map."""
+    if world is not None:
+        return {"world": {"source": world.source, "sha256": world.checksum}}
+    if map_errors is not None:
+        return {"map_errors": {**map_errors.to_dict(), "seed": int(seed),
+                               "map_offset_m": list(map_offset(map_errors, seed))}}
+    return {}
+
+
+def recorded_map_offset(simulation: dict | None) -> tuple[float, float]:
+    """The :func:`map_offset` a :func:`world_record` holds [m]; (0, 0) when the world was the map
+    (or another DEM, whose offset is not known)."""
+    off = ((simulation or {}).get("map_errors") or {}).get("map_offset_m") or (0.0, 0.0)
+    return float(off[0]), float(off[1])
+
+
 def fractal_noise(shape, cell_m, min_wavelength_m, max_wavelength_m, rng, beta=3.0):
     """Zero-mean, unit-rms noise with a power spectrum ~ f**-beta between two wavelengths [m]."""
     ny, nx = shape

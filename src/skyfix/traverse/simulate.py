@@ -101,9 +101,10 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
     The path is planned on ``dem`` (the map); ``truth.jsonl`` is where the rover is in the world.
     """
     from ..formats import Truth
-    from ..north import meridian_convergence_deg, true_heading_deg
+    from ..north import true_heading_deg
     from ..simulate import check_seed, simulate_acquisition
-    from ..simulate.world import map_offset, world_dem
+    from ..simulate.world import recorded_map_offset, world_dem, world_record
+    from .run import convergence_function
 
     seed = check_seed(seed)
     out = Path(out)
@@ -116,18 +117,12 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
     if bad:
         raise ParameterError(f"stop conditions for stops {bad}: the traverse has stops 0-{n - 1}")
     rng = np.random.default_rng(seed + 1)
-    sim_world: dict = {}
-    offset = (0.0, 0.0)
-    if world is not None:
-        sim_world["world"] = {"source": world.source, "sha256": world.checksum}
-    elif map_errors is not None:
-        offset = map_offset(map_errors, seed)
-        sim_world["map_errors"] = {**map_errors.to_dict(), "seed": int(seed),
-                                   "map_offset_m": list(offset)}
+    sim_world = world_record(map_errors, seed, world)
+    offset = recorded_map_offset(sim_world)
     render = dem
     out.mkdir(parents=True, exist_ok=True)
-    conv = [meridian_convergence_deg(dem.crs_wkt, x, y) for x, y in zip(plan.x, plan.y)]
-    conv = [c if math.isfinite(c) else 0.0 for c in conv]
+    convergence = convergence_function(dem.crs_wkt)
+    conv = [convergence(x, y) for x, y in zip(plan.x, plan.y)]
     names = [f"stop_{k:03d}" for k in range(n)]
     for k in range(n):
         folder = out / names[k]
@@ -178,9 +173,9 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
 def map_offset_of(trav) -> tuple[float, float]:
     """(dx, dy) [m] from a simulated traverse's truth to where its terrain lies on the map (0, 0
     when the world was the map, or for a traverse that is not simulated)."""
-    sim = (getattr(trav, "meta", None) or {}).get("simulation") or {}
-    off = (sim.get("map_errors") or {}).get("map_offset_m") or (0.0, 0.0)
-    return float(off[0]), float(off[1])
+    from ..simulate.world import recorded_map_offset
+
+    return recorded_map_offset((getattr(trav, "meta", None) or {}).get("simulation"))
 
 
 def odometry_only(trav, convergence=lambda x, y: 0.0) -> list[tuple[float, float, float]]:
