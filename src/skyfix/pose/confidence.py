@@ -93,7 +93,8 @@ def calibrated_sigma(raw_sigma: float, feat: dict, model: dict | None = None,
     sites (63-68 % claimed): it does not see residuals above the noise, a map that is not the
     world or a detection off by pixels. Without a fitted model, ``raw_sigma``."""
     model = model if model is not None else load_confidence_model()
-    m = (model or {}).get(key, {}).get("sigma") if isinstance((model or {}).get(key), dict) else None
+    entry = (model or {}).get(key)
+    m = entry.get("sigma") if isinstance(entry, dict) else None
     if not m:
         return float(raw_sigma)
     z = m["intercept"] + sum(c * feat[f] for c, f in zip(m["coef"], m["features"]))

@@ -13,7 +13,7 @@ from ..match import prepare_query, score_profiles, tilt_determinable
 from ..north import meridian_convergence_deg, true_heading_deg
 from .attitude import fit_attitude
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
-                         residual_correlation_bins, structureless_cap)
+                         load_confidence_model, residual_correlation_bins, structureless_cap)
 from .fix import DETERMINED_SIGMA_DEG, HeadingFix, crs_and_lonlat
 from .forward import body_profile, harmonic_tilt, residual_profile
 from .scoring import profile_arrays
@@ -48,6 +48,8 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         raise ParameterError(f"heading prior must be a finite angle [deg], got {heading_prior_deg}")
     if not (math.isfinite(x) and math.isfinite(y)):
         raise ParameterError(f"rough position must be finite [m], got ({x}, {y})")
+    if model is None:  # read once: the confidence and the sigma both use it
+        model = load_confidence_model()
     q, noise = profile_arrays(profile)
     n = q.size
     dem.require_inside(np.array([x]), np.array([y]), "rough position")

@@ -37,7 +37,8 @@ from ..match import match_database, prepare_query, tilt_determinable
 from ..north import meridian_convergence_deg, true_heading_deg
 from ..progress import stage
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
-                         position_sigma, residual_correlation_bins, structureless_cap)
+                         load_confidence_model, position_sigma, residual_correlation_bins,
+                         structureless_cap)
 from .config import PoseConfig
 from .fix import Fix, crs_and_lonlat
 from .refine import inside_dem, prior_grid, refine_candidates
@@ -158,6 +159,8 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         raise ParameterError(f"prior position must be finite [m], got {tuple(prior_xy)}")
     if prior_radius_m is not None and not (math.isfinite(prior_radius_m) and prior_radius_m > 0):
         raise ParameterError(f"prior radius must be a finite number of metres > 0, got {prior_radius_m}")
+    if model is None:  # read once: the confidence and the sigma both use it
+        model = load_confidence_model()
     if camera_height_m is None:
         camera_height_m = float(getattr(db, "camera_height_m", None) or
                                 profile.meta.get("camera_height_m", 1.5))
