@@ -55,3 +55,48 @@ def test_board_commands_stay_lean(board_inputs, command):
     assert r.returncode == 0, r.stderr
     heavy = [ln for ln in r.stderr.splitlines() if ln.startswith("HEAVY:")]
     assert heavy == ["HEAVY:"], f"{command} imported {heavy}"
+
+
+# The board install (``pip install skyfix``, no ``[ground]``): the ground libraries absent. An
+# entry of None in sys.modules makes ``import`` fail as if the package were not installed.
+WITHOUT_GROUND = """
+import sys
+for name in ('sklearn', 'matplotlib', 'dask', 'distributed'):
+    sys.modules[name] = None
+from skyfix.cli.main import cli
+cli(sys.argv[1:], prog_name='skyfix')
+"""
+
+
+def _without_ground(*args):
+    return subprocess.run([sys.executable, "-c", WITHOUT_GROUND, *args], capture_output=True,
+                          text=True, timeout=600)
+
+
+def test_board_install_runs_the_board_and_names_the_ground_extra(board_inputs):
+    d, dem_path, acq, x, y = board_inputs
+    frame = str(acq / "frame_000.png")
+    r = _without_ground("detect", frame, "-o", str(d / "lean.json"), "--overwrite")
+    assert r.returncode == 0, r.stderr
+    assert (d / "lean.json").exists()
+
+    # a figure asked of a board install: refused before any work, with the install that adds it
+    r = _without_ground("detect", frame, "-o", str(d / "lean2.json"), "--plot", str(d / "p.png"))
+    assert r.returncode == 2, r.stderr
+    assert "matplotlib" in r.stderr and 'skyfix[ground]' in r.stderr
+    assert "Traceback" not in r.stderr
+    assert not (d / "lean2.json").exists() and not (d / "p.png").exists()
+
+    r = _without_ground("detect", frame, "-o", str(d / "lean3.json"), "--method", "bayes")
+    assert r.returncode == 2 and "scikit-learn" in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+    # a build: worker processes need Dask (the message offers --workers 0), and --workers 0 builds
+    db = d / "lean.zarr"
+    common = ["build-db", str(dem_path), "-o", str(db), "--bounds", str(x - 30), str(y - 30),
+              str(x + 30), str(y + 30), "--spacing-m", "30"]
+    r = _without_ground(*common)
+    assert r.returncode == 2 and "Dask" in r.stderr and "--workers 0" in r.stderr, r.stderr
+    assert not db.exists()
+    r = _without_ground(*common, "--workers", "0")
+    assert r.returncode == 0, r.stderr
+    assert db.exists()

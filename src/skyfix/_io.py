@@ -255,6 +255,10 @@ def check_outputs(overwrite: bool, *outputs) -> None:
         if path is None:
             continue
         check_can_write(path, overwrite, folder=False, suffixes=suffixes)
+        if suffixes is PLOT_FORMATS:  # a figure: refused now, not after the work, if it cannot be drawn
+            from .optional import require
+
+            require("matplotlib", f"{option} (a figure)")
         key = os.path.normcase(os.path.abspath(path))
         if key in seen:
             raise SkyfixError(f"{seen[key]} and {option} both name {path}: give each output its own file")

@@ -304,7 +304,8 @@ def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig, *
     rendered at the truth and at the fix and seen through the same levelling."""
     from .horizon import render_horizons
     from .pose import body_profile
-    from .report import pyplot, save_figure
+    from .optional import pyplot
+    from .report import save_figure
 
     plt = pyplot()
     n = profile.n_bins

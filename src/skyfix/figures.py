@@ -45,7 +45,7 @@ def plot_fix_map(path, fix, dem, *, area=None, truth=None, pad_m=None) -> Path:
     of the fix (the fix's own coordinates are in the title): map coordinates of seven digits do
     not fit under an axis."""
     from ._io import save_figure
-    from .report import pyplot
+    from .optional import pyplot
 
     plt = pyplot()
     ox, oy = fix.x, fix.y
@@ -100,7 +100,7 @@ def plot_fix_map(path, fix, dem, *, area=None, truth=None, pad_m=None) -> Path:
 def plot_frame_skyline(path, rgb, skyline, title="") -> Path:
     """One image with its detected skyline drawn over it (columns without one left bare)."""
     from ._io import save_figure
-    from .report import pyplot
+    from .optional import pyplot
 
     plt = pyplot()
     h, w = rgb.shape[:2]

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ._io import atomic_path
+from .optional import pyplot
 
 #: what "correct" means per scenario: position error [m] and heading error [deg] at most
 TOLERANCES = {1: (5.0, 2.0), 2: (1.0, 1.0), 3: (math.inf, 1.0)}
@@ -264,17 +265,6 @@ def format_table(rows: list[dict], fmt: str = "text") -> str:
 
 
 # --- figures ---------------------------------------------------------------------------------------
-
-def pyplot():
-    """matplotlib.pyplot on the non-interactive Agg backend (imported only when a figure is
-    drawn: plotting stays out of the board segment's imports)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
 
 def save_figure(fig, path) -> Path:
     """Write ``fig`` as PNG to ``path`` atomically (110 dpi) and close it."""

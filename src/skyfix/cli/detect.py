@@ -61,10 +61,9 @@ def read_mask(path, shape):
 def plot_skyline(path, img, skyline):
     """Write the image with the detected skyline drawn over it, in the format ``path``'s suffix
     names (PNG, JPEG, PDF or SVG)."""
-    import matplotlib
+    from ..optional import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import numpy as np
 
     from .._io import save_figure

@@ -100,10 +100,9 @@ def _summary(dem, x, y, hb, el, length, az, max_distance_m):
 
 
 def _plot(path, az, el, length, x, y, dem, max_distance_m):
-    import matplotlib
+    from ..optional import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     from .._io import save_figure
 

@@ -120,10 +120,9 @@ def _write_score_map(path, mres, db):
 
 
 def _plot(path, fix, mres, db, dem, profile, truth=None):
-    import matplotlib
+    from ..optional import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import numpy as np
 
     from .._io import save_figure

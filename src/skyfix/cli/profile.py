@@ -48,10 +48,9 @@ def profile(acq_dir, method, azimuth_bins, detector, no_refine, output, plot, ov
 def plot_profile(prof, path, title: str = "") -> None:
     """Elevation [deg] vs body azimuth [deg] with a 2-sigma band, written atomically to ``path``
     in the format its suffix names (PNG, JPEG, PDF or SVG)."""
-    import matplotlib
+    from ..optional import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import numpy as np
 
     from .._io import save_figure

@@ -10,6 +10,7 @@ from concurrent.futures import Executor, Future
 from contextlib import contextmanager
 
 from ..errors import ParameterError
+from ..optional import require
 
 
 log = logging.getLogger(__package__)  # messages name the stage, as before the split
@@ -45,6 +46,7 @@ def check_executor_options(workers: int | None, scheduler: str | None) -> None:
     if scheduler is not None:
         why = "not a string"
         if isinstance(scheduler, str):
+            require("distributed", "--scheduler (an existing Dask cluster)")
             from distributed.comm import get_address_host_port
 
             # Parsed here, not left to Client(): a Client that fails on a malformed address (an
@@ -56,6 +58,9 @@ def check_executor_options(workers: int | None, scheduler: str | None) -> None:
                 why = str(e)
         raise ParameterError(f"--scheduler {scheduler!r} is not a Dask scheduler address ({why}): give "
                              "tcp://HOST:PORT")
+    elif workers != 0:
+        require("distributed", "building with worker processes (--workers N, the default)",
+                "--workers 0 to build in this process")
 
 
 def default_workers() -> int:

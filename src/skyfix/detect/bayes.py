@@ -15,6 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..optional import require
 from .image import (downscale, downscale_factor, downscale_valid, fill_invalid, resample_to,
                     to_float_gray, trusted)
 from .options import BayesOptions, DpOptions
@@ -62,7 +63,8 @@ def detect_bayes(img, valid, opt: BayesOptions, model=None):
     opt : :class:`BayesOptions`; model : the sky classifier for the initial likelihoods.
     Returns (rows (W,) [px, NaN = no skyline], confidence (W,) in [0, 1], column validity (W,)).
     """
-    from sklearn.ensemble import RandomForestClassifier
+    RandomForestClassifier = require("sklearn.ensemble", "--method bayes (its per-image random "
+                                     "forest)").RandomForestClassifier
 
     H, W = img.shape[:2]
     col_valid = valid.any(axis=0)

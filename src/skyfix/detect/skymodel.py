@@ -27,6 +27,7 @@ import numba
 import numpy as np
 
 from ..errors import ParameterError
+from ..optional import require
 from .image import (as_gray_rgb, downscale, downscale_factor, downscale_rgb, downscale_valid,
                     fill_invalid, to_float_gray, trusted, valid_mask)
 
@@ -300,7 +301,8 @@ def fit_sky_model(parts, *, per_image=20_000, seed=0, max_iter=60, max_leaf_node
     so a large mosaic does not outvote a small one; with ``balance`` sky and terrain get equal
     total weight (prior odds 1). Returns (:class:`SkyModel`, the fitted scikit-learn estimator).
     """
-    from sklearn.ensemble import HistGradientBoostingClassifier
+    HistGradientBoostingClassifier = require(
+        "sklearn.ensemble", "training the sky model").HistGradientBoostingClassifier
 
     rng = np.random.default_rng(seed)
     Xs, ys, ws = [], [], []

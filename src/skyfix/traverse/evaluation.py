@@ -32,7 +32,7 @@ def traverse_errors(rows, trav, convergence):
 def plot_errors(path, dist, pe, he, ope, ohe, fixes) -> Path:
     """Position and heading error against the distance driven: fused and odometry alone."""
     from .._io import save_figure
-    from ..report import pyplot
+    from ..optional import pyplot
 
     plt = pyplot()
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)

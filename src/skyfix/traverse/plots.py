@@ -13,7 +13,7 @@ def plot_track(path, rows, trav, dem, convergence) -> Path:
     ``convergence(x, y)`` [deg] true minus grid north."""
     from .._io import save_figure
     from ..figures import hillshade, legend_outside
-    from ..report import pyplot
+    from ..optional import pyplot
     from .simulate import odometry_only
 
     plt = pyplot()
