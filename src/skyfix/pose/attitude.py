@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .forward import body_profile
+from .forward import BodyProfiler
 
 
 @dataclass(frozen=True)
@@ -42,10 +42,11 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
     obs = np.isfinite(q)
     qo = q[obs]
     n = q.size
-    kw = dict(n_bins=n, prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+    profile = BodyProfiler(world_el_deg, n_bins=n, prior_pitch_deg=prior_pitch_deg,
+                           prior_roll_deg=prior_roll_deg)
 
     def resid(th):
-        r = qo - body_profile(world_el_deg, th[0], th[1], th[2], **kw)[obs]
+        r = qo - profile(th[0], th[1], th[2])[obs]
         return r - np.median(r)
 
     def robust(r):

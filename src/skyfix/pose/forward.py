@@ -22,18 +22,33 @@ def body_profile(world_el_deg, yaw_deg, pitch_deg=0.0, roll_deg=0.0, *, n_bins=3
     frame (azimuth from the forward axis); the rotated curve is re-binned by periodic linear
     interpolation at the ``n_bins`` body bin centres.
     """
-    w = np.asarray(world_el_deg, np.float64)
-    m = w.size
-    az = np.radians(np.arange(m) * 360.0 / m)
-    el = np.radians(np.nan_to_num(w))
-    ce = np.cos(el)
-    d = np.stack([ce * np.sin(az), ce * np.cos(az), np.sin(el)], axis=1)
-    rot = r_world_body(0.0, prior_pitch_deg, prior_roll_deg) @ r_world_body(yaw_deg, pitch_deg, roll_deg).T
-    b = d @ rot.T
-    azb = np.degrees(np.arctan2(b[:, 0], b[:, 1])) % 360.0
-    elb = np.degrees(np.arctan2(b[:, 2], np.hypot(b[:, 0], b[:, 1])))
-    order = np.argsort(azb)
-    return np.interp(np.arange(n_bins) * 360.0 / n_bins, azb[order], elb[order], period=360.0)
+    return BodyProfiler(world_el_deg, n_bins=n_bins, prior_pitch_deg=prior_pitch_deg,
+                        prior_roll_deg=prior_roll_deg)(yaw_deg, pitch_deg, roll_deg)
+
+
+class BodyProfiler:
+    """:func:`body_profile` of one world horizon for many attitudes: what does not depend on the
+    attitude (the horizon's direction vectors, the prior's rotation, the bin centres) is computed
+    once. An attitude fit calls it tens of thousands of times per fix."""
+
+    def __init__(self, world_el_deg, *, n_bins=360, prior_pitch_deg=0.0, prior_roll_deg=0.0):
+        w = np.asarray(world_el_deg, np.float64)
+        m = w.size
+        az = np.radians(np.arange(m) * 360.0 / m)
+        el = np.radians(np.nan_to_num(w))
+        ce = np.cos(el)
+        self._d = np.stack([ce * np.sin(az), ce * np.cos(az), np.sin(el)], axis=1)
+        self._prior = r_world_body(0.0, prior_pitch_deg, prior_roll_deg)
+        self._centres = np.arange(n_bins) * 360.0 / n_bins
+
+    def __call__(self, yaw_deg, pitch_deg=0.0, roll_deg=0.0) -> np.ndarray:
+        """The body-frame profile [deg] (``n_bins``) for this yaw, pitch and roll [deg]."""
+        rot = self._prior @ r_world_body(yaw_deg, pitch_deg, roll_deg).T
+        b = self._d @ rot.T
+        azb = np.degrees(np.arctan2(b[:, 0], b[:, 1])) % 360.0
+        elb = np.degrees(np.arctan2(b[:, 2], np.hypot(b[:, 0], b[:, 1])))
+        order = np.argsort(azb)
+        return np.interp(self._centres, azb[order], elb[order], period=360.0)
 
 
 def relevel(profile_deg, pitch_deg, roll_deg, *, prior_pitch_deg=0.0, prior_roll_deg=0.0):
