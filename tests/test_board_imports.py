@@ -100,3 +100,18 @@ def test_board_install_runs_the_board_and_names_the_ground_extra(board_inputs):
     r = _without_ground(*common, "--workers", "0")
     assert r.returncode == 0, r.stderr
     assert db.exists()
+
+
+def test_board_commands_get_one_malloc_arena():
+    """The board's heap setting reaches glibc (where there is one): a wrong symbol or argument
+    type would silently leave the 40 MB of per-thread arenas in place."""
+    import platform
+
+    from skyfix.cli.heap import one_malloc_arena
+
+    libc, _ = platform.libc_ver()
+    if libc != "glibc":
+        pytest.skip(f"not glibc ({libc or 'unknown C library'}): one_malloc_arena is a no-op")
+    r = subprocess.run([sys.executable, "-c", "from skyfix.cli.heap import one_malloc_arena; "
+                        "print(one_malloc_arena())"], capture_output=True, text=True, timeout=60)
+    assert r.stdout.strip() == "True", r.stderr

@@ -45,6 +45,9 @@ COMMANDS = {
 #: commands whose output a rerun continues rather than redoes
 RESUMABLE = {"build-db", "traverse", "simulate-traverse"}
 
+#: the board segment's commands: they run on a rover in 256 MB (skyfix.cli.heap)
+BOARD = {"detect", "profile", "locate", "heading", "attitude"}
+
 
 class LazyGroup(click.Group):
     def list_commands(self, ctx):
@@ -54,6 +57,10 @@ class LazyGroup(click.Group):
         if name not in COMMANDS:
             return None
         module, attr, _ = COMMANDS[name]
+        if name in BOARD:
+            from .heap import one_malloc_arena
+
+            one_malloc_arena()
         try:
             mod = importlib.import_module(f"skyfix.cli.{module}")
         except ModuleNotFoundError as e:

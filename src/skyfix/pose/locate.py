@@ -59,11 +59,13 @@ def degenerate_search(db, dem, x, y, prior_xy, prior_radius_m, tolerance_m, grid
     reasons = []
     if db is not None:
         xs, ys = np.asarray(db.x_coords, float), np.asarray(db.y_coords, float)
-        gx, gy = np.meshgrid(xs, ys)
-        inside = np.ones(gx.shape, bool)
+        n = xs.size * ys.size
         if prior_xy is not None and prior_radius_m is not None:
-            inside = np.hypot(gx - prior_xy[0], gy - prior_xy[1]) <= prior_radius_m
-        n = int(inside.sum())
+            # counted a band of rows at a time: the whole grid's coordinates would be 31 MB at
+            # the 7 x 7 km database's 1.96 M positions, the board's peak
+            n = sum(int(np.count_nonzero(np.hypot(xs[None, :] - prior_xy[0], ys[r:r + 64, None] -
+                                                  prior_xy[1]) <= prior_radius_m))
+                    for r in range(0, ys.size, 64))
         if n < MIN_SEARCHED_POSITIONS:
             reasons.append(f"only {n} database position{'s' * (n != 1)} searched (fewer than "
                            f"{MIN_SEARCHED_POSITIONS})")
