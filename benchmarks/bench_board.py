@@ -119,10 +119,15 @@ def _cases(dem, db, n, work: Path, seed=0):
     out = []
     for name, (x, y), pitch in plans[:max(n, 3)]:
         truth = Truth(float(x), float(y), float(rng.uniform(0, 360)), pitch, 0.0)
+        seed = int(rng.integers(1 << 30))  # drawn either way: the next case's truth must not move
         folder = work / name.replace(" ", "_").replace("%", "pct")
-        if not (folder / "acquisition.json").exists():
+        acq = folder / "acquisition.json"
+        if acq.exists():  # a rerun: the truth it was rendered with, whatever drew it
+            t = json.loads(acq.read_text())["truth"]
+            truth = Truth(t["x"], t["y"], t["yaw_deg"], t["pitch_deg"], t["roll_deg"])
+        else:
             simulate_acquisition(dem, truth, folder, camera="navcam", tilt_deg=15.0, overwrite=True,
-                                 seed=int(rng.integers(1 << 30)), attitude_prior=(0.0, 0.0))
+                                 seed=seed, attitude_prior=(0.0, 0.0))
         out.append((name, folder, truth))
     return out
 
