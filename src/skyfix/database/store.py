@@ -14,6 +14,7 @@ import numpy as np
 from .. import __version__
 from ..errors import DatabaseError, ParameterError
 from ..planets import Planet
+from .chunks import chunk_reader
 from .integrity import (absent_data, check_arrays, check_attrs, damaged, data_missing_message,
                         done_blocks, is_int, root_state)
 from .layout import (DATA_ARRAYS, FORMAT, FORMAT_VERSION, Grid, MARKER_DIR, MISSING, SCALE_DEG,
@@ -65,6 +66,7 @@ class SkylineDatabase:
         self._done = done
         self._absent = absent or {}  # built blocks whose chunk files are gone (see absent_data)
         self._arrays: dict = {}
+        self._readers: dict = {}  # array name -> direct chunk reader (.chunks), or None
         gr = attrs["grid"]
         self.grid = Grid(float(gr["x0"]), float(gr["y0"]), float(gr["spacing_m"]), int(gr["shape"][0]),
                          int(gr["shape"][1]), int(gr["block_shape"][0]))
@@ -217,6 +219,13 @@ class SkylineDatabase:
 
     def _read_unchecked(self, name: str, br: int, bc: int) -> np.ndarray:
         rs, cs = self.grid.block_slices(br, bc)
+        if name == "elevation":  # the bulk of every search: decoded directly where it can be
+            if "elevation" not in self._readers:
+                self._readers["elevation"] = chunk_reader(self._array(name))
+            read = self._readers["elevation"]
+            if read is not None and self.grid.block == self._array(name).chunks[0] == \
+                    self._array(name).chunks[1]:
+                return read((br, bc, 0))[: rs.stop - rs.start, : cs.stop - cs.start]
         return np.asarray(self._array(name)[rs, cs])
 
     def read_raw(self, name: str, br: int, bc: int) -> np.ndarray:

@@ -1,0 +1,73 @@
+"""The skyline chunks decoded without zarr's codec pipeline.
+
+A full search of the 7 x 7 km database decodes 1.4 GB of int16 skylines. Through zarr that cost
+4.5 s of CPU, three times the zstd decompression it wraps: the pipeline runs each codec as its
+own pass (the shuffle, then the delta filter's cumulative sum) behind asyncio. Here the chunk
+file is read, zstd decompresses it (its checksum checked) and one numba pass undoes the shuffle
+and the delta together: 1.7 s for the same data, the arrays identical.
+
+Only the layout skyfix writes takes this path (``build.py``: Delta(i2), little-endian bytes,
+Shuffle(2), zstd; regular chunks, default chunk keys, a local folder). Any other array, and a
+big-endian machine, is read through zarr.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numba
+import numpy as np
+
+#: the codec chain (zarr v3 names, in encoding order) this module decodes
+LAYOUT = ("numcodecs.delta", "bytes", "numcodecs.shuffle", "zstd")
+
+
+def chunk_reader(array):
+    """A function ``(chunk coordinates) -> int16 ndarray of the chunk's full shape`` reading
+    ``array``'s chunks directly, or None when the array is not stored in :data:`LAYOUT` in a
+    local folder (then read it through zarr)."""
+    if sys.byteorder != "little":
+        return None
+    try:
+        meta = array.metadata.to_dict()
+        root = array.store_path.store.root
+        base = Path(root) / array.store_path.path
+    except AttributeError:  # another zarr format, or a store that is not a folder
+        return None
+    codecs = meta.get("codecs", ())
+    if tuple(c.get("name") for c in codecs) != LAYOUT or str(meta.get("data_type")) != "int16":
+        return None
+    delta, byt, shuffle, _ = (c.get("configuration") or {} for c in codecs)
+    if (delta.get("dtype") != "i2" or set(delta) - {"dtype"} or byt.get("endian") != "little"
+            or shuffle.get("elementsize") != 2):
+        return None
+    grid, keys = meta.get("chunk_grid", {}), meta.get("chunk_key_encoding", {})
+    if grid.get("name") != "regular" or keys.get("name") != "default":
+        return None
+    shape = tuple(int(v) for v in grid["configuration"]["chunk_shape"])
+    from numcodecs import Zstd
+
+    zstd = Zstd()
+    key = array.metadata.encode_chunk_key
+
+    def read(coords) -> np.ndarray:
+        raw = zstd.decode((base / key(tuple(coords))).read_bytes())
+        out = np.empty(shape, np.int16)
+        if len(raw) != 2 * out.size:
+            raise ValueError(f"chunk {coords} holds {len(raw)} bytes, expected {2 * out.size}")
+        unshuffle_undelta(np.frombuffer(raw, np.uint8), out.reshape(-1))
+        return out
+
+    return read
+
+
+@numba.njit(cache=True, nogil=True)
+def unshuffle_undelta(raw, out):
+    """Undo a 2-byte shuffle (all low bytes, then all high bytes) and a delta filter (int16
+    cumulative sum, wrapping as numpy's does) in one pass: ``raw`` uint8 (2 n,) -> ``out`` int16 (n,)."""
+    n = out.size
+    s = 0
+    for i in range(n):
+        s = (s + (raw[i] | (raw[n + i] << 8))) & 0xFFFF
+        out[i] = s - 0x10000 if s >= 0x8000 else s
