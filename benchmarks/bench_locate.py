@@ -17,6 +17,10 @@ machine are noisy; CPU seconds are steadier than wall seconds there.
 
     PYTHONPATH=src python benchmarks/bench_locate.py [--db DB] [--repeat 3] [--preset fast]
         [--heading 123] [--noise 0.2] [--coverage 360] [--pitch 0 --roll 0] [--profile P.json]
+        [--load [N]]
+
+With ``--load``, the locate runs are repeated while N processes (one per core by default) spin,
+started and stopped by the benchmark itself: the search must stay within 2x of its idle time.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -105,6 +110,10 @@ def main():
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--preset", default="fast")
+    ap.add_argument("--load", type=int, nargs="?", const=os.cpu_count(), default=0,
+                    help="then rerun the locate runs with this many busy-looping processes started "
+                         "and stopped by the benchmark (default with the flag: one per core), and "
+                         "print the loaded / idle wall-time ratio")
     args = ap.parse_args()
 
     from skyfix.database import open_database
@@ -131,6 +140,19 @@ def main():
             loads.append(os.getloadavg()[0])
             loc.append(run_locate(args.db, prof, args.preset, Path(d) / "fix.json"))
             mat.append(run_match(args.db, prof, args.preset))
+        loaded = []
+        if args.load:
+            busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+                    for _ in range(args.load)]
+            try:
+                time.sleep(3.0)  # let the scheduler see them
+                for _ in range(args.repeat):
+                    loaded.append(run_locate(args.db, prof, args.preset, Path(d) / "fix.json"))
+                load_during = os.getloadavg()[0]
+            finally:
+                for b in busy:
+                    b.kill()
+                    b.wait()
     med = statistics.median
     print(f"load average (1 min) during the runs: {', '.join(f'{v:.1f}' for v in loads)} on "
           f"{os.cpu_count()} cores")
@@ -138,6 +160,12 @@ def main():
     print(f"skyfix locate (whole process, {args.repeat} runs): wall median {med(walls):.2f} s "
           f"(runs {', '.join(f'{w:.2f}' for w in walls)}), CPU median "
           f"{med(c for _, _, c, _ in loc):.2f} s, peak RSS max {max(r for _, r, _, _ in loc):.0f} MB")
+    if loaded:
+        lw = [w for w, _, _, _ in loaded]
+        print(f"with {args.load} busy-looping processes (load {load_during:.1f}): wall median "
+              f"{med(lw):.2f} s (runs {', '.join(f'{w:.2f}' for w in lw)}), CPU median "
+              f"{med(c for _, _, c, _ in loaded):.2f} s; loaded / idle wall {med(lw) / med(walls):.2f} "
+              "(target <= 2)")
     fix = loc[-1][3]
     if tr is not None:
         fr, fc = (int(v) for v in db.index_of(fix["x"], fix["y"]))
