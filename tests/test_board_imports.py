@@ -87,6 +87,10 @@ def test_board_install_runs_the_board_and_names_the_ground_extra(board_inputs):
     assert "Traceback" not in r.stderr
     assert not (d / "lean2.json").exists() and not (d / "p.png").exists()
 
+    # the ground commands that draw: refused before their long work, nothing written
+    r = _without_ground("demo", "-o", str(d / "demo"))
+    assert r.returncode == 2 and "matplotlib" in r.stderr and not (d / "demo").exists(), r.stderr
+
     r = _without_ground("detect", frame, "-o", str(d / "lean3.json"), "--method", "bayes")
     assert r.returncode == 2 and "scikit-learn" in r.stderr and "Traceback" not in r.stderr, r.stderr
 

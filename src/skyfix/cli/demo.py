@@ -17,6 +17,9 @@ def demo(out, seed, overwrite):
     and print the fix and its error."""
     from ..demo import run_demo
     from .._io import writing_to
+    from ..optional import require
+
+    require("matplotlib", "skyfix demo (its figures)")
 
     with writing_to(out):
         run_demo(out, seed=seed, overwrite=overwrite, say=click.echo)

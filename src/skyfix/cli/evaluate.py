@@ -46,7 +46,9 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
     from ..evaluate import EvalConfig
     from ..evaluate import evaluate as run
     from .._io import writing_to
+    from ..optional import require
 
+    require("matplotlib", "skyfix evaluate (its figures and report)")
     args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
     if scenario == "traverse":
         from ..simulate import check_seed

@@ -47,6 +47,10 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
         raise ParameterError(f"--min-confidence must be within [0, 1], got {min_confidence}")
     if max_rejections < 1:
         raise ParameterError(f"--max-rejections must be >= 1, got {max_rejections}")
+    if not no_plot:  # refused now, not after the whole traverse
+        from ..optional import require
+
+        require("matplotlib", "the track figure (track.png)", "--no-plot")
     if leg_length_m is not None and not (math.isfinite(leg_length_m) and leg_length_m > 0):
         raise ParameterError(f"--leg-length-m must be a number of metres > 0, got {leg_length_m}")
     out = check_folder_output(out)
