@@ -373,7 +373,10 @@ def test_false_fragment_that_misleads_the_database_search_is_left_out_on_retry(w
     assert np.hypot(fix.x - tx, fix.y - ty) < 1.0
     assert abs(_ang(fix.heading_deg - th)) < 0.3
     assert fix.score < 0.5 * once.score
-    assert fix.confidence >= 0.9  # measured 0.95
+    # right, and far surer than the misled fix; not >= 0.9 since the confidence model learnt from
+    # map-error cases that a residual well above the noise (the fragment is still in the view)
+    # is often a wrong fix (measured 0.82; 0.95 before that refit)
+    assert fix.confidence >= 0.75 and fix.confidence > once.confidence + 0.2
 
 
 def test_residual_correlation_length_of_white_and_ar1_noise():
