@@ -22,6 +22,9 @@ from .layout import (DATA_ARRAYS, FORMAT, FORMAT_VERSION, Grid, MARKER_DIR, MISS
 
 
 # --- reading ---------------------------------------------------------------------------------------
+_UNDECIDED = object()
+
+
 @dataclass(frozen=True)
 class Block:
     """One block of positions as stored.
@@ -66,7 +69,7 @@ class SkylineDatabase:
         self._done = done
         self._absent = absent or {}  # built blocks whose chunk files are gone (see absent_data)
         self._arrays: dict = {}
-        self._readers: dict = {}  # array name -> direct chunk reader (.chunks), or None
+        self._elev_reader = _UNDECIDED  # see _elevation_reader
         gr = attrs["grid"]
         self.grid = Grid(float(gr["x0"]), float(gr["y0"]), float(gr["spacing_m"]), int(gr["shape"][0]),
                          int(gr["shape"][1]), int(gr["block_shape"][0]))
@@ -220,13 +223,19 @@ class SkylineDatabase:
     def _read_unchecked(self, name: str, br: int, bc: int) -> np.ndarray:
         rs, cs = self.grid.block_slices(br, bc)
         if name == "elevation":  # the bulk of every search: decoded directly where it can be
-            if "elevation" not in self._readers:
-                self._readers["elevation"] = chunk_reader(self._array(name))
-            read = self._readers["elevation"]
-            if read is not None and self.grid.block == self._array(name).chunks[0] == \
-                    self._array(name).chunks[1]:
+            read = self._elevation_reader()
+            if read is not None:
                 return read((br, bc, 0))[: rs.stop - rs.start, : cs.stop - cs.start]
         return np.asarray(self._array(name)[rs, cs])
+
+    def _elevation_reader(self):
+        """The direct chunk reader of the elevation array (:mod:`.chunks`), or None where zarr must
+        read it (another layout, or chunks that are not one block each); decided once."""
+        if self._elev_reader is _UNDECIDED:
+            a = self._array("elevation")
+            one_block = tuple(a.chunks[:2]) == (self.grid.block, self.grid.block)
+            self._elev_reader = chunk_reader(a) if one_block else None
+        return self._elev_reader
 
     def read_raw(self, name: str, br: int, bc: int) -> np.ndarray:
         """Array ``name``'s chunk of block (br, bc) as stored, shaped (rows, cols[, bins]).
