@@ -4,7 +4,8 @@ A full search of the 7 x 7 km database decodes 1.4 GB of int16 skylines. Through
 4.5 s of CPU, three times the zstd decompression it wraps: the pipeline runs each codec as its
 own pass (the shuffle, then the delta filter's cumulative sum) behind asyncio. Here the chunk
 file is read, zstd decompresses it (its checksum checked) and one numba pass undoes the shuffle
-and the delta together: 1.7 s for the same data, the arrays identical.
+and the delta together: 1.9 s of the search's reader thread for the same data
+(``benchmarks/bench_locate.py``), the arrays identical.
 
 Only the layout skyfix writes takes this path (``build.py``: Delta(i2), little-endian bytes,
 Shuffle(2), zstd; regular chunks, default chunk keys, a local folder). Any other array, and a
