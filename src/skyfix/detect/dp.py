@@ -18,6 +18,7 @@ full resolution by a narrow band DP on the vertical intensity step (:mod:`.refin
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from .image import (downscale, downscale_factor, downscale_rgb, downscale_valid, fill_invalid,
@@ -84,6 +85,38 @@ def _cloud_like(tex, lo, rgb_s, valid_s, min_llr, sure_llr=2.0, min_sure=100, sk
     return valid_s & (tex > 0) & (lo > min_llr) & brighter
 
 
+@numba.njit(cache=True)
+def _median_above(d, valid, rows, cols, n_rows):
+    """Median of ``d`` over the valid pixels of the ``n_rows`` rows above ``rows[i]`` in column
+    ``cols[i]``; 0 where there are none."""
+    out = np.zeros(rows.size)
+    buf = np.empty(n_rows)
+    for i in range(rows.size):
+        r, c = rows[i], cols[i]
+        m = 0
+        for rr in range(max(0, r - n_rows), r):
+            if valid[rr, c]:
+                buf[m] = d[rr, c]
+                m += 1
+        if m:
+            out[i] = np.median(buf[:m])
+    return out
+
+
+@numba.njit(cache=True)
+def _valid_column_mean(d, valid):
+    """Mean of ``d`` over each column's valid pixels (0 where none)."""
+    h, w = d.shape
+    s = np.zeros(w)
+    n = np.zeros(w)
+    for r in range(h):
+        for c in range(w):
+            if valid[r, c]:
+                s[c] += d[r, c]
+                n[c] += 1
+    return np.where(n > 0, s / np.maximum(n, 1), 0.0)
+
+
 def detect_dp(img, valid, opt: DpOptions, model=None):
     """The ``dp`` detector on a prepared image.
 
@@ -137,14 +170,11 @@ def detect_dp(img, valid, opt: DpOptions, model=None):
         edge = G[r, cs]
         # the median over 30 rows: the texture term is blurred 7 columns wide, so on a steep
         # flank the rows just above the skyline look like the terrain beside them
-        above = np.array([np.median(d[max(0, rr - 30):rr, c][valid_s[max(0, rr - 30):rr, c]])
-                          if rr > 0 and valid_s[max(0, rr - 30):rr, c].any() else 0.0
-                          for rr, c in zip(r, cs)])
+        above = _median_above(d, valid_s, r, cs, 30)
         conf_s[cs] = np.clip(edge, 0, 1) * np.clip(0.5 - 0.5 * above, 0, 1)
     no = ~have
     # no-skyline: confident when the column clearly lacks sky (mean d well above 0)
-    col_mean = np.array([d[valid_s[:, c], c].mean() if valid_s[:, c].any() else 0.0
-                         for c in range(w)])
+    col_mean = _valid_column_mean(d, valid_s)
     conf_s[no] = np.clip(0.5 + 0.5 * np.abs(col_mean[no]), 0, 1)
     conf = conf_s[full_cols]
     unsure = np.isfinite(rows) & (conf < opt.min_confidence)

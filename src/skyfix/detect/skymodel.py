@@ -120,41 +120,68 @@ def sky_features(gray_s, rgb_s, valid_s):
     return np.nan_to_num(X, nan=0.0, posinf=0.0, neginf=0.0)
 
 
-@numba.njit(cache=True, parallel=True)
-def _ensemble_raw(X, feat, thr, left, right, value, roots, depth, baseline):
-    """Raw (log-odds) score of each row of X under a forest of binary trees stored as arrays.
+@numba.njit(cache=True, inline="always")
+def _walk_block(X, feat, thr, child, value, roots, depth, out, i0, m):
+    """Add the forest's raw score of rows ``i0 .. i0 + m - 1`` of X to ``out``.
 
-    Leaves point to themselves with an infinite threshold, so every tree is walked a fixed
-    ``depth[t]`` steps with a branch-free select, and the pixel loop sits inside the tree loop
-    (per block of pixels): independent pixels overlap in the CPU instead of stalling on
-    mispredicted branches.
+    Node k's children are ``child[2 k]`` (x <= thr) and ``child[2 k + 1]`` (else, NaN too);
+    leaves point to themselves with an infinite threshold, so every tree is walked a fixed
+    ``depth[t]`` steps. The walk is level by level over the block: each step of one pixel
+    depends on its previous step (four loads in a chain), so the block's pixels, independent of
+    each other, are what keeps the CPU busy (2x over walking each pixel to its leaf in turn).
     """
+    ks = np.empty(m, np.int32)
+    for t in range(roots.size):
+        for j in range(m):
+            ks[j] = roots[t]
+        for _ in range(depth[t]):
+            for j in range(m):
+                k = ks[j]
+                ks[j] = child[2 * k + np.int32(not X[i0 + j, feat[k]] <= thr[k])]
+        for j in range(m):
+            out[i0 + j] += value[ks[j]]
+
+
+_BLOCK = 1024
+
+
+@numba.njit(cache=True)
+def _ensemble_serial(X, feat, thr, child, value, roots, depth, baseline):
+    """Raw (log-odds) score of each row of X under a forest stored as arrays, on one thread."""
     n = X.shape[0]
     out = np.full(n, baseline)
-    block = 4096
-    nb = (n + block - 1) // block
-    for b in numba.prange(nb):
-        i0 = b * block
-        i1 = min(n, i0 + block)
-        for t in range(roots.size):
-            root = roots[t]
-            dt = depth[t]
-            for i in range(i0, i1):
-                k = root
-                for _ in range(dt):
-                    k = left[k] if X[i, feat[k]] <= thr[k] else right[k]
-                out[i] += value[k]
+    for b in range((n + _BLOCK - 1) // _BLOCK):
+        i0 = b * _BLOCK
+        _walk_block(X, feat, thr, child, value, roots, depth, out, i0, min(n, i0 + _BLOCK) - i0)
+    return out
+
+
+@numba.njit(cache=True, parallel=True)
+def _ensemble_parallel(X, feat, thr, child, value, roots, depth, baseline):
+    """:func:`_ensemble_serial` with the blocks shared among numba's threads."""
+    n = X.shape[0]
+    out = np.full(n, baseline)
+    for b in numba.prange((n + _BLOCK - 1) // _BLOCK):
+        i0 = b * _BLOCK
+        _walk_block(X, feat, thr, child, value, roots, depth, out, i0, min(n, i0 + _BLOCK) - i0)
     return out
 
 
 def _walk_tables(feat, thr, left, right, leaf, roots):
-    """Self-looping leaves and per-tree depths for :func:`_ensemble_raw`."""
-    feat = np.where(leaf, 0, feat).astype(np.int64)
-    thr = np.where(leaf, np.inf, thr).astype(np.float64)
+    """(feat, float32 thresholds, interleaved children, roots, per-tree depths) for :func:`_walk_block`.
+
+    The thresholds are rounded down to float32: for a float32 x, ``x <= t`` (float64) holds
+    exactly when ``x <= t32`` with t32 the largest float32 not above t, so the splits are the
+    trees' own and the comparison stays in float32.
+    """
     idx = np.arange(feat.size)
-    left = np.where(leaf, idx, left).astype(np.int64)
-    right = np.where(leaf, idx, right).astype(np.int64)
-    depth = np.zeros(roots.size, np.int64)
+    t32 = np.where(leaf, np.inf, thr).astype(np.float32)
+    over = t32.astype(np.float64) > np.where(leaf, np.inf, thr)
+    t32[over] = np.nextafter(t32[over], np.float32(-np.inf))
+    child = np.empty(2 * feat.size, np.int32)
+    child[0::2] = np.where(leaf, idx, left)
+    child[1::2] = np.where(leaf, idx, right)
+    depth = np.zeros(roots.size, np.int32)
     for t, r in enumerate(roots):
         level, d = [int(r)], 0
         while True:
@@ -163,7 +190,7 @@ def _walk_tables(feat, thr, left, right, leaf, roots):
                 break
             level, d = nxt, d + 1
         depth[t] = d
-    return feat, thr, left, right, depth
+    return np.where(leaf, 0, feat).astype(np.int32), t32, child, roots.astype(np.int32), depth
 
 
 @dataclass(frozen=True)
@@ -188,8 +215,10 @@ class SkyModel:
     def log_odds_sky(self, X):
         """log P(sky) / P(terrain) per row of X (n, N_FEATURES)."""
         X = np.ascontiguousarray(X, dtype=np.float32).reshape(-1, N_FEATURES)
-        f, t, lft, rgt, depth = self._tables()
-        return _ensemble_raw(X, f, t, lft, rgt, self.value, self.roots, depth, self.baseline)
+        f, t, child, roots, depth = self._tables()
+        # a parallel loop on one thread costs 25 % (the board's single core)
+        kernel = _ensemble_parallel if numba.get_num_threads() > 1 else _ensemble_serial
+        return kernel(X, f, t, child, self.value, roots, depth, self.baseline)
 
     def _tables(self):
         tab = self.__dict__.get("_tab")
