@@ -78,16 +78,18 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
         lam = 1e-3
         r = resid(th)
         w, cost = robust(r)
+        a = None
         for _ in range(iterations):
-            jac = np.empty((r.size, 4))
-            for i in range(3):
-                e = np.zeros(3)
-                e[i] = h
-                jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)  # dr/dtheta
-            jac[:, 3] = -1.0  # dr/d(offset): a nuisance, the median is removed anyway
-            jw = jac * w[:, None]
-            a = jac.T @ jw
-            g = jw.T @ r
+            if a is None:  # a rejected step leaves th, r and w as they were: so is the system
+                jac = np.empty((r.size, 4))
+                for i in range(3):
+                    e = np.zeros(3)
+                    e[i] = h
+                    jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)  # dr/dtheta
+                jac[:, 3] = -1.0  # dr/d(offset): a nuisance, the median is removed anyway
+                jw = jac * w[:, None]
+                a = jac.T @ jw
+                g = jw.T @ r
             step = np.linalg.solve(a + lam * np.diag(np.diag(a) + 1e-9), -g)[:3]
             th_new = th + step
             th_new[0] = in_window(th_new[0])
@@ -96,6 +98,7 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
             w_new, cost_new = robust(r_new)
             if cost_new < cost:
                 th, r, w, cost = th_new, r_new, w_new, cost_new
+                a = None
                 lam = max(lam / 4, 1e-6)
                 if np.max(np.abs(step)) < 1e-4:
                     break
