@@ -142,14 +142,16 @@ def store360():
     return dem, MemoryStore.from_dem(dem, xs, ys, azimuth_bins=360, block=16)
 
 
-def test_coarse_prefilter_keeps_the_exact_winner_on_realistic_queries(store360):
+@pytest.mark.parametrize("stride", [1, 2])
+def test_coarse_prefilter_keeps_the_exact_winner_on_realistic_queries(store360, stride):
     """Off-grid truths, 0.2 deg noise, 150 deg views, 10 deg tilts: the fast search (coarse
-    pre-filter, 3 % kept) returns the same best position and heading as the exhaustive exact one."""
+    pre-filter, 3 % kept; on every position or every other row and column) returns the same best
+    position and heading as the exhaustive exact one."""
     from skyfix.pose import synthetic_profile
 
     dem, st = store360
     rng = np.random.default_rng(7)
-    fast_cfg = MatchConfig(slice_rows=256)
+    fast_cfg = MatchConfig(slice_rows=256, coarse_stride=stride, stride_min_coverage=0.0)
     exact_cfg = MatchConfig(coarse_factor=1, slice_rows=256)
     cases = 0
     for i in range(10):
@@ -198,3 +200,20 @@ def test_zarr_store_elevation_path_equals_brute_force(tmp_path):
     c = res.candidates[0]
     assert (c.x, c.y) == (xs.ravel()[k0], ys.ravel()[k0])
     assert abs((c.heading_deg - 100.0 + 180) % 360 - 180) < 1.0
+
+
+@pytest.mark.parametrize("disc", [False, True])
+def test_subgrid_coarse_pass_reaches_every_position(store, disc):
+    """With every subgrid node kept, the neighbourhoods of a stride-2 coarse pass cover every
+    position (inside the prior disc, when given) exactly once, and the scores are the exact ones."""
+    _, st = store
+    q = st.profiles_at(600.0, 500.0)[0].astype(float)
+    kw = dict(prior_xy=(530.0, 650.0), prior_radius_m=95.0) if disc else {}
+    exact = match_database(st, q, MatchConfig(coarse_factor=1, min_observed=10), **kw)
+    sub = match_database(st, q, MatchConfig(coarse_factor=4, coarse_stride=2, keep_fraction=9.0,
+                                            min_observed=10, stride_min_coverage=0.0), **kw)
+    scored = np.isfinite(exact.score_map)
+    assert sub.n_positions == exact.n_positions == scored.sum()
+    assert sub.n_scored_exact == scored.sum()
+    assert np.array_equal(np.isfinite(sub.score_map), scored)
+    assert np.allclose(sub.score_map[scored], exact.score_map[scored], rtol=1e-6, atol=1e-6)

@@ -45,6 +45,16 @@ class MatchConfig:
     coarse_factor : bins averaged in the coarse pre-pass (1 = exact scoring everywhere)
     keep_fraction : share of each slice's positions scored exactly after the coarse pass
     keep_min : at least this many per slice are scored exactly
+    coarse_stride : the coarse pass scores every ``coarse_stride``-th position along rows and
+        columns only; each survivor's neighbours within ``coarse_stride - 1`` positions are then
+        scored exactly (1 = every position in the coarse pass). Measured on the 7 x 7 km Sierra
+        database at 5 m (60 queries rendered at random off-grid positions, half from a world
+        with map errors, 0.1 deg noise, pitch and roll N(0, 3 deg)): with 2, the 40 full turns
+        gave the same best position as with 1, at 2.8 instead of 5.2 s of CPU; of the 20
+        120-deg views, 3 changed and 2 of those lost the true basin (the coarse score of a
+        narrow view is rougher from one grid step to the next). Hence ``stride_min_coverage``
+    stride_min_coverage : the share of the azimuth bins the query must observe for the coarse
+        stride to apply; a narrower view is searched with stride 1
     top_k : candidates returned, in distinct basins
     nms_radius_m : [m] two candidates are at least this far apart
     slice_rows : positions processed at once (memory ~ slice_rows * bins * 40 bytes)
@@ -57,6 +67,8 @@ class MatchConfig:
     coarse_factor: int = 4
     keep_fraction: float = 0.03
     keep_min: int = 16
+    coarse_stride: int = 2
+    stride_min_coverage: float = 0.75
     top_k: int = 8
     nms_radius_m: float = 40.0
     slice_rows: int = 2048
@@ -224,6 +236,11 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
     f = int(config.coarse_factor)
     if f < 1 or n % f:
         raise ParameterError(f"coarse_factor {f} must divide the {n} azimuth bins")
+    stride = int(config.coarse_stride)
+    if stride < 1:
+        raise ParameterError(f"coarse_stride must be >= 1, got {config.coarse_stride}")
+    if np.isfinite(q).mean() < config.stride_min_coverage:
+        stride = 1
     query = prepare_query(q, config.remove_tilt, config.min_observed)
     coarse_q = dense_query(prepare_query(decimate_query(q, f), config.remove_tilt,
                                          max(4, config.min_observed // f))) if f > 1 else None
@@ -269,6 +286,22 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
                     continue
             rr, cc = grid_index(db, bx, by)
             elev = np.asarray(blk.elevation)
+            if coarse_q is not None and stride > 1:
+                ta = time.perf_counter()
+                idx, n_here = _subgrid_survivors(elev, rr, cc, sel, stride, coarse_q, f, scale,
+                                                 missing, config)
+                n_pos += n_here
+                t_coarse += time.perf_counter() - ta
+                for s0 in range(0, idx.size, EXACT_BATCH):
+                    part = idx[s0:s0 + EXACT_BATCH]
+                    pend.append((elev[part], rr[part], cc[part]))
+                    pend_n += part.size
+                    if pend_n >= min(config.slice_rows, EXACT_BATCH):
+                        tb = time.perf_counter()
+                        n_exact += flush()
+                        t_exact += time.perf_counter() - tb
+                t0 = time.perf_counter()
+                continue
             idx_all = np.arange(bx.size) if sel is None else sel
             for s0 in range(0, idx_all.size, config.slice_rows):
                 idx = idx_all[s0:s0 + config.slice_rows]
@@ -305,6 +338,58 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
     timing = {"read_s": t_read, "reader_cpu_s": t_reader, "main_cpu_s": cpu_main,
               "coarse_s": t_coarse, "exact_s": t_exact, "nms_s": time.perf_counter() - tn}
     return MatchResult(cands, score_map, heading_map, n_pos, n_exact, timing)
+
+
+def _subgrid_survivors(elev, rr, cc, sel, stride, coarse_q, f, scale, missing, config):
+    """The coarse pass on every ``stride``-th grid row and column of a block, then the
+    neighbourhood (``stride - 1`` positions each way) of each survivor.
+
+    Skylines change little over one grid step except right beside steep near terrain, so a
+    neighbour of the true position that survives the coarse filter brings the true position to
+    the exact pass. The share kept (and ``keep_min``) is that of the block's positions, expressed
+    in subgrid nodes: each survivor brings up to ``(2 stride - 1)^2`` positions.
+    Returns (indices into the block to score exactly, positions the block holds in the search).
+    """
+    on = (rr % stride == 0) & (cc % stride == 0)
+    if sel is not None:
+        inside = np.zeros(rr.size, bool)
+        inside[sel] = True
+        # a node just outside the disc may be the only one beside a position inside it
+        near = inside.copy()
+        r0, c0 = rr.min(), cc.min()
+        grid_in = np.zeros((rr.max() - r0 + 1, cc.max() - c0 + 1), bool)
+        grid_in[rr - r0, cc - c0] = inside
+        for dr in range(-(stride - 1), stride):
+            for dc in range(-(stride - 1), stride):
+                sr, sc = rr - r0 + dr, cc - c0 + dc
+                ok = (sr >= 0) & (sr < grid_in.shape[0]) & (sc >= 0) & (sc < grid_in.shape[1])
+                near[ok] |= grid_in[sr[ok], sc[ok]]
+        on &= near
+    nodes = np.flatnonzero(on)
+    n_here = rr.size if sel is None else sel.size
+    if nodes.size == 0:
+        return nodes, n_here
+    w = (2 * stride - 1) ** 2
+    kept = []
+    for s0 in range(0, nodes.size, config.slice_rows):
+        sl = nodes[s0:s0 + config.slice_rows]
+        cs, _ = score_dense(_coarse_profiles(elev[sl], f, scale, missing), coarse_q)
+        area = sl.size * stride * stride
+        keep = int(math.ceil(max(config.keep_min, config.keep_fraction * area) / w))
+        kept.append(sl[np.argpartition(cs, keep - 1)[:keep]] if keep < sl.size else sl)
+    kept = np.concatenate(kept)
+    # the block's positions within reach of a survivor, by (row, col) in a block-sized mask
+    r0, c0 = rr.min(), cc.min()
+    mask = np.zeros((rr.max() - r0 + 1, cc.max() - c0 + 1), bool)
+    for dr in range(-(stride - 1), stride):
+        for dc in range(-(stride - 1), stride):
+            r, c = rr[kept] - r0 + dr, cc[kept] - c0 + dc
+            ok = (r >= 0) & (r < mask.shape[0]) & (c >= 0) & (c < mask.shape[1])
+            mask[r[ok], c[ok]] = True
+    take = mask[rr - r0, cc - c0]
+    if sel is not None:
+        take &= inside
+    return np.flatnonzero(take), n_here
 
 
 @contextmanager
