@@ -35,7 +35,8 @@ def run_dem(dem_path, out: Path, args) -> list[dict]:
     from skyfix.errors import SkyfixError
     from skyfix.formats import Truth, load_acquisition
     from skyfix.pose import estimate_heading
-    from skyfix.profile import acquisition_profile
+    from skyfix.pose.image_plane import frames_from_acquisition
+    from skyfix.profile import acquisition_profile, detect_frames
     from skyfix.simulate import simulate_acquisition
     from skyfix.simulate.world import MapErrors, map_offset, world_dem
 
@@ -62,13 +63,16 @@ def run_dem(dem_path, out: Path, args) -> list[dict]:
         t0 = time.perf_counter()
         row = dict(dem=name, case=k, ok=False, conf=0.0, he=np.inf, pe=np.inf, re=np.inf)
         try:
-            prof = acquisition_profile(acq, detector=args.detector)
+            skylines = detect_frames(acq, args.detector)
+            prof = acquisition_profile(acq, skylines=skylines)
+            frames = frames_from_acquisition(acq, skylines) if args.solve == "image" else None
             hf = estimate_heading(prof, dem, tx + off[0], ty + off[1], yaw + dh, 10.0,
                                   camera_height_m=acq.camera_height_m,
-                                  prior_pitch_deg=acq.prior_pitch_deg, prior_roll_deg=acq.prior_roll_deg)
+                                  prior_pitch_deg=acq.prior_pitch_deg, prior_roll_deg=acq.prior_roll_deg,
+                                  frames=frames)
             row.update(ok=True, conf=hf.confidence, he=abs(_ang(hf.grid_heading_deg - yaw)),
                        pe=abs(hf.pitch_deg - pitch), re=abs(hf.roll_deg - roll),
-                       hsig=hf.heading_sigma_deg)
+                       hsig=hf.heading_sigma_deg, psig=hf.pitch_sigma_deg, rsig=hf.roll_sigma_deg)
         except SkyfixError as e:
             row["why"] = str(e).splitlines()[0]
         row["seconds"] = time.perf_counter() - t0
@@ -90,6 +94,8 @@ def main(argv=None):
     ap.add_argument("--prior-sigma-deg", type=float, default=5.0)
     ap.add_argument("--heading-offset-deg", type=float, default=5.0)
     ap.add_argument("--detector", default="dp", choices=("dp", "bayes", "net"))
+    ap.add_argument("--solve", default="image", choices=("image", "profile"),
+                    help="also solve in the image plane (what the CLI does), or the profile fit alone")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -110,6 +116,14 @@ def main(argv=None):
     print(f"confidence >= 0.9: {int(sure.sum())} frames, {int((he[sure] <= 1).sum())} with the heading "
           f"within 1 deg; time per frame median {np.median(secs):.2f} s, max {secs.max():.2f} s "
           f"(detection and projection included)")
+    ok = np.array([r["ok"] for r in rows])
+    if ok.any():
+        cover = []
+        for name, err, key in (("heading", he, "hsig"), ("pitch", pe, "psig"), ("roll", re_, "rsig")):
+            sig = np.array([r.get(key, np.nan) for r in rows])[ok]
+            z = err[ok] / sig
+            cover.append(f"{name} {np.mean(z <= 1):.0%} / {np.mean(z <= 2):.0%}")
+        print("the error within 1 / 2 of the reported sigmas: " + ", ".join(cover))
     for d in args.dem:
         n = Path(d).stem
         k = np.array([r["dem"] == n for r in rows])

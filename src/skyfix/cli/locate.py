@@ -24,9 +24,11 @@ def _check_source(acq_dir, profile_path):
         raise ParameterError("give an acquisition folder or --profile PROFILE.json")
 
 
-def _read_profile(acq_dir, profile_path):
+def _read_profile(acq_dir, profile_path, frames=None):
     """Profile from ``--profile`` JSON, else from the acquisition folder; with the attitude prior
-    (pitch, roll) [deg] and the camera height [m] (None when the profile does not say)."""
+    (pitch, roll) [deg] and the camera height [m] (None when the profile does not say).
+    ``frames``, a list, receives each frame's detected rows
+    (:class:`~skyfix.pose.image_plane.FrameRows`) when the profile comes from frames."""
     from ..formats import load_acquisition, read_profile_json
 
     _check_source(acq_dir, profile_path)
@@ -43,7 +45,15 @@ def _read_profile(acq_dir, profile_path):
     acq = load_acquisition(acq_dir)
     n = len(acq.frames) or 1
     with stage(f"skyline detected and profiled ({n} image{'s' * (n > 1)})") as st:
-        prof = acquisition_profile(acq)
+        if frames is not None and acq.frames and acq.panorama is None:
+            from ..pose.image_plane import frames_from_acquisition
+            from ..profile import detect_frames
+
+            skylines = detect_frames(acq)
+            frames.extend(frames_from_acquisition(acq, skylines))
+            prof = acquisition_profile(acq, skylines=skylines)
+        else:
+            prof = acquisition_profile(acq)
         used = prof.meta.get("frames_used")
         obs = int(np.isfinite(prof.elevation_deg).sum())
         st.result = (f"{used} of {n} images with a skyline, " if used is not None else "") + \
@@ -323,7 +333,8 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     if not (math.isfinite(window_deg) and 0 < window_deg <= 180):
         raise ParameterError(f"--window-deg must be within (0, 180] deg, got {window_deg}")
     check_outputs(overwrite, ("--output", out, None))
-    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path)
+    frames = []  # the frames' detected rows: a narrow view is also solved in the image plane
+    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames)
     dem_path = " + ".join(dem_paths)
     dem = load_dems(list(dem_paths))
     x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
@@ -335,7 +346,7 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     grid_prior = (grid_heading_from_true(heading_prior_deg, conv) if prior_north == "true"
                   else heading_prior_deg)
     hf = estimate_heading(prof, dem, x, y, grid_prior, window_deg, camera_height_m=h,
-                          prior_pitch_deg=pp, prior_roll_deg=pr)
+                          prior_pitch_deg=pp, prior_roll_deg=pr, frames=frames)
     if window_deg < 180 and at_window_edge(hf.grid_heading_deg, grid_prior, window_deg):
         click.echo(f"warning: the heading {hf.heading_deg:.1f} deg is on the edge of the window "
                    f"{heading_prior_deg:g} +- {window_deg:g} deg: the best match lies outside it "

@@ -16,11 +16,19 @@ from .confidence import (calibrated_sigma, confidence_features, confidence_from_
                          load_confidence_model, residual_correlation_bins, structureless_cap)
 from .fix import DETERMINED_SIGMA_DEG, HeadingFix, crs_and_lonlat
 from .forward import body_profile, harmonic_tilt, residual_profile
+from .image_plane import fit_attitude_image, view_span_deg
 from .scoring import profile_arrays
 
 
 #: Confidence at most, of a heading pinned to the edge of its search window.
 PINNED_HEADING_CONFIDENCE = 0.05
+
+#: [deg] frames spanning at most this much are also solved in the image plane
+IMAGE_PLANE_MAX_SPAN_DEG = 120.0
+#: confidence at most, when the image-plane yaw lies more than 1 deg from the profile fit's
+SOLVES_DISAGREE_CONFIDENCE = 0.5
+#: azimuth bins of the horizon rendered for the image-plane solve (0.05 deg: ~1 px of a navcam)
+IMAGE_PLANE_RENDER_BINS = 7200
 
 
 def at_window_edge(heading_deg, prior_deg, window_deg, tol_deg=1e-6) -> bool:
@@ -31,7 +39,7 @@ def at_window_edge(heading_deg, prior_deg, window_deg, tol_deg=1e-6) -> bool:
 
 def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                      camera_height_m=1.5, planet=None, prior_pitch_deg=0.0, prior_roll_deg=0.0,
-                     render_bins=1440, model=None) -> HeadingFix:
+                     render_bins=1440, model=None, frames=None) -> HeadingFix:
     """Scenario 3: heading [deg] from a rough position (x, y) [m] and a heading prior [deg].
 
     ``heading_prior_deg`` is from grid north, as every azimuth inside skyfix (the CLI converts a
@@ -39,6 +47,12 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     norths. The shift search is restricted to ``heading_prior_deg +/- window_deg``; the attitude is then
     refined by Gauss-Newton with restarts, yaw kept within the window. A heading on the window's
     edge (the best lies beyond it) gets confidence at most PINNED_HEADING_CONFIDENCE.
+
+    ``frames`` (:class:`~skyfix.pose.image_plane.FrameRows`, the detected rows of each frame):
+    a view spanning at most IMAGE_PLANE_MAX_SPAN_DEG is then solved again in the image plane
+    from the profile fit's answer (:func:`~skyfix.pose.image_plane.fit_attitude_image`), and
+    that answer, with its own sigmas, is the one reported; the confidence stays the profile
+    fit's.
     """
     from ..horizon import render_horizons
 
@@ -87,7 +101,25 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         # and the true heading most likely lies outside the window (truth 20 deg from the prior
         # with a +-10 deg window gave the edge at confidence 0.9).
         conf = min(conf, PINNED_HEADING_CONFIDENCE)
-    grid = att.yaw_deg % 360.0
+    img = None
+    if frames and view_span_deg(frames) <= IMAGE_PLANE_MAX_SPAN_DEG:
+        fine = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
+                               azimuth_bins=IMAGE_PLANE_RENDER_BINS).elevation_deg[0]
+        # restarts over the prior's uncertainty, as the NASA Ames study did (27 there): the
+        # profile's answer can sit in a wrong basin when the view is narrow
+        starts = [(heading_prior_deg + dy, prior_pitch_deg + dp, prior_roll_deg + dr)
+                  for dy in np.linspace(-0.75, 0.75, 4) * min(window_deg, 10.0)
+                  for dp in (-3.0, 0.0, 3.0) for dr in (-3.0, 0.0, 3.0)]
+        img = fit_attitude_image(frames, fine, att.yaw_deg, att.pitch_deg, att.roll_deg,
+                                 yaw_window_deg=window_deg, yaw_center_deg=heading_prior_deg,
+                                 starts=starts)
+    yaw, pitch, roll = (img.yaw_deg, img.pitch_deg, img.roll_deg) if img is not None else \
+        (att.yaw_deg, att.pitch_deg, att.roll_deg)
+    if img is not None and abs((img.yaw_deg - att.yaw_deg + 180.0) % 360.0 - 180.0) > 1.0:
+        # the two solves found different basins: the confidence is the profile fit's, about
+        # another answer
+        conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)
+    grid = yaw % 360.0
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     crs, lon, lat = crs_and_lonlat(dem.crs_wkt, x, y)
     # the fit's sigma counts every bin as independent; neighbouring residuals are not
@@ -96,9 +128,16 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     inflate = math.sqrt(max(1.0, corr))
     hsig = calibrated_sigma(att.yaw_sigma_deg * inflate, feat, model, "heading")
     psig, rsig = att.pitch_sigma_deg * inflate, att.roll_sigma_deg * inflate
+    if img is not None:
+        # the image fit's formal sigmas see the detection noise but not the map's and the
+        # model's systematic errors (12 % of pitch errors within 1 sigma on simulated frames):
+        # the profile fit's, which carry the calibration, stay the floor
+        hsig = max(hsig, img.yaw_sigma_deg)
+        psig = max(psig, img.pitch_sigma_deg)
+        rsig = max(rsig, img.roll_sigma_deg)
     determined = {k: bool(math.isfinite(v) and v <= DETERMINED_SIGMA_DEG)
                   for k, v in (("heading", hsig), ("pitch", psig), ("roll", rsig))}
-    return HeadingFix(true_heading_deg(grid, conv), hsig, att.pitch_deg, att.roll_deg,
+    return HeadingFix(true_heading_deg(grid, conv), hsig, pitch, roll,
                       conf, att.rms_deg ** 2, float(x), float(y), grid_heading_deg=grid,
                       meridian_convergence_deg=conv, crs=crs, lon=lon, lat=lat,
                       pitch_sigma_deg=psig, roll_sigma_deg=rsig, determined=determined,

@@ -1,0 +1,245 @@
+"""Yaw, pitch and roll solved in the image plane: the rendered horizon projected through each
+frame's camera model against the skyline rows detected in it (the NASA Ames study's solve).
+
+Why beside the profile fit (:mod:`.attitude`): a profile bins the skyline into 1-deg azimuth
+bins and removes a free elevation offset (camera height, DEM bias), so over a narrow arc pitch
+and roll are left to the curve's second-order shape. In the image every column is a
+measurement (0.04 deg per pixel for a 45-deg navcam) and nothing absorbs the horizon's height in
+the frame: pitch comes from where the skyline sits, roll from its slope, yaw from its place
+across the frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..camera import Camera, az_el_to_direction, r_world_cam
+
+
+@dataclass(frozen=True)
+class FrameRows:
+    """One frame's detected skyline: rows [px] per column (NaN = none), its camera and pointing
+    (pan, tilt [deg] of the mast)."""
+
+    camera: Camera
+    pan_deg: float
+    tilt_deg: float
+    rows: np.ndarray
+
+
+@dataclass(frozen=True)
+class ImageAttitude:
+    """An image-plane fit: yaw, pitch, roll [deg] with 1-sigma [deg] (inflated for correlated
+    residuals), the robust residual level [px] and the number of skyline columns used."""
+
+    yaw_deg: float
+    pitch_deg: float
+    roll_deg: float
+    yaw_sigma_deg: float
+    pitch_sigma_deg: float
+    roll_sigma_deg: float
+    robust_rms_px: float
+    n_columns: int
+
+
+#: every this many detected columns is a residual (neighbouring columns are not independent)
+COLUMN_STEP = 4
+#: [px] a column the prediction does not reach counts as this far off (Huber keeps it small)
+MISS_PX = 40.0
+#: a restart wins only below this share of the first start's residual cost
+RESTART_GAIN = 0.7
+
+
+class _Projector:
+    """Predicted skyline rows at the detected columns of each frame, for an attitude."""
+
+    def __init__(self, frames, world_el_deg):
+        w = np.asarray(world_el_deg, np.float64)
+        az = np.arange(w.size) * 360.0 / w.size
+        ok = np.isfinite(w)
+        # the closed horizon, unrolled once past 360 so a frame across north is one piece
+        self._dirs = az_el_to_direction(np.r_[az[ok], az[ok] + 360.0], np.r_[w[ok], w[ok]])
+        self._frames = []
+        for f in frames:
+            r = np.asarray(f.rows, np.float64)
+            cols = np.flatnonzero(np.isfinite(r))[::COLUMN_STEP]
+            if cols.size:
+                self._frames.append((f, cols.astype(np.float64), r[cols]))
+        self.n = sum(c.size for _, c, _ in self._frames)
+
+    def observed(self):
+        return np.concatenate([o for _, _, o in self._frames]) if self._frames else np.zeros(0)
+
+    def predict(self, yaw, pitch, roll):
+        out = []
+        for f, cols, _ in self._frames:
+            cam = f.camera
+            d = self._dirs @ r_world_cam(yaw, pitch, roll, f.pan_deg, f.tilt_deg)
+            u, v, front = cam.ray_to_pixel(d)
+            keep = front & (u > -0.5 * cam.width) & (u < 1.5 * cam.width)
+            pred = np.full(cols.size, np.nan)
+            if keep.sum() >= 2:
+                uu, vv = u[keep], v[keep]
+                # the visible piece: vertices in front, in order of azimuth; a column between two
+                # vertices gets the row interpolated between them
+                order = np.argsort(uu, kind="stable")
+                uu, vv = uu[order], vv[order]
+                inside = (cols >= uu[0]) & (cols <= uu[-1])
+                pred[inside] = np.interp(cols[inside], uu, vv)
+            out.append(pred)
+        return np.concatenate(out) if out else np.zeros(0)
+
+
+def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
+                       yaw_window_deg=None, yaw_center_deg=None, iterations=20,
+                       min_columns=12, starts=()):
+    """Yaw, pitch, roll [deg] that put the world horizon (``world_el_deg``, bin k at
+    ``k * 360 / m`` deg from grid north, rendered at the camera) on the detected rows.
+
+    frames : :class:`FrameRows`; starts from (yaw0, pitch0, roll0) [deg], the profile fit's answer,
+    and from each of ``starts`` ((yaw, pitch, roll) [deg], the restarts over the prior's
+    uncertainty); a restart's answer replaces the first one only when its residual (Huber
+    cost at a fixed 2 px scale) is below RESTART_GAIN times the first one's.
+    Levenberg-Marquardt with a numerical Jacobian and Huber weights (scale 2.5 x 1.4826 MAD,
+    at least 1 px): columns on a false fragment or a rock weigh little. Yaw stays within
+    ``yaw_window_deg`` of ``yaw_center_deg`` when given. Returns an :class:`ImageAttitude`, or
+    None when fewer than ``min_columns`` columns are usable.
+    """
+    proj = _Projector(frames, world_el_deg)
+    if proj.n < min_columns:
+        return None
+    obs = proj.observed()
+    center = yaw0_deg if yaw_center_deg is None else yaw_center_deg
+
+    def clamp(th):
+        th = th.copy()
+        if yaw_window_deg is not None:
+            d = (th[0] - center + 180.0) % 360.0 - 180.0
+            th[0] = center + float(np.clip(d, -yaw_window_deg, yaw_window_deg))
+        th[1:] = np.clip(th[1:], -30.0, 30.0)
+        return th
+
+    def resid(th):
+        r = obs - proj.predict(*th)
+        return np.where(np.isfinite(r), r, MISS_PX)
+
+    def weights(r):
+        s = max(1.4826 * float(np.median(np.abs(r))), 1.0)
+        k = 2.5 * s
+        a = np.abs(r)
+        w = np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
+        return w, float(np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k)))
+
+    def jacobian(th, h=0.01):
+        jac = np.empty((obs.size, 3))
+        for i in range(3):
+            e = np.zeros(3)
+            e[i] = h
+            jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)
+        return jac
+
+    def solve(th):
+        th = clamp(np.asarray(th, float))
+        r = resid(th)
+        w, cost = weights(r)
+        lam, a = 1e-3, None
+        for _ in range(iterations):
+            if a is None:
+                jac = jacobian(th)
+                jw = jac * w[:, None]
+                a, g = jac.T @ jw, jw.T @ r
+            try:
+                step = np.linalg.solve(a + lam * np.diag(np.diag(a) + 1e-9), -g)
+            except np.linalg.LinAlgError:
+                break
+            th_new = clamp(th + step)
+            r_new = resid(th_new)
+            w_new, cost_new = weights(r_new)
+            if cost_new < cost:
+                th, r, w, cost, a = th_new, r_new, w_new, cost_new, None
+                lam = max(lam / 4, 1e-6)
+                if np.max(np.abs(step)) < 1e-4:
+                    break
+            else:
+                lam *= 8
+                if lam > 1e4:
+                    break
+        return th, r, w
+
+    def fixed_cost(r):
+        a = np.abs(r)
+        return float(np.sum(np.where(a <= 2.0, 0.5 * a * a, 2.0 * a - 2.0)))
+
+    th, r, w = solve([yaw0_deg, pitch0_deg, roll0_deg])
+    c0 = fixed_cost(r)
+    best = (c0, th, r, w)
+    for st in starts:
+        th_s, r_s, w_s = solve(st)
+        c = fixed_cost(r_s)
+        if c < RESTART_GAIN * c0 and c < best[0]:
+            best = (c, th_s, r_s, w_s)
+    _, th, r, w = best
+    jac = jacobian(th)
+    good = w >= 1.0
+    sig2 = float(np.sum(w * r * r) / max(1, r.size - 3))
+    # neighbouring residuals share a detection error (a bias over a ridge): inflate by the
+    # integrated autocorrelation length of the residuals, in samples
+    inflate = _correlation_length(np.where(good, r, np.nan))
+    try:
+        cov = np.linalg.inv(jac.T @ (jac * w[:, None])) * sig2 * inflate
+        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    except np.linalg.LinAlgError:
+        sd = np.full(3, np.inf)
+    mad = float(1.4826 * np.median(np.abs(r - np.median(r))))
+    return ImageAttitude(float(th[0] % 360.0), float(th[1]), float(th[2]), *map(float, sd), mad,
+                         int(obs.size))
+
+
+def _correlation_length(r, max_lag=30, floor=0.05):
+    """``1 + 2 sum_k rho_k`` of a residual series (NaN = left out) until rho drops below
+    ``floor``; at least 1."""
+    ok = np.isfinite(r)
+    if ok.sum() < 10:
+        return 1.0
+    x = np.where(ok, r - np.mean(r[ok]), 0.0)
+    var = float(np.mean(x[ok] ** 2))
+    if var <= 0:
+        return 1.0
+    tau = 1.0
+    for k in range(1, min(max_lag, x.size // 2) + 1):
+        both = ok[:-k] & ok[k:]
+        if both.sum() < 10:
+            break
+        rho = float(np.mean((x[:-k] * x[k:])[both])) / var
+        if rho < floor:
+            break
+        tau += 2.0 * rho
+    return max(1.0, tau)
+
+
+def frames_from_acquisition(acq, skylines):
+    """:class:`FrameRows` of an acquisition's frames with a detected skyline."""
+    out = []
+    for fr, sky in zip(acq.frames, skylines):
+        if sky is None:
+            continue
+        rows = np.asarray(sky.rows, np.float64)
+        if np.isfinite(rows).any():
+            out.append(FrameRows(acq.camera, float(fr.pan_deg), float(fr.tilt_deg), rows))
+    return out
+
+
+def view_span_deg(frames) -> float:
+    """Horizontal span [deg] the frames' detected columns cover together (pans + half widths),
+    an upper bound used to decide whether the view is narrow."""
+    if not frames:
+        return 0.0
+    spans = [f.camera.hfov_deg for f in frames]
+    pans = np.array([f.pan_deg for f in frames])
+    return float(min(360.0, (np.ptp(pans) if pans.size > 1 else 0.0) + max(spans)))
+
+
+__all__ = ["FrameRows", "ImageAttitude", "fit_attitude_image", "frames_from_acquisition",
+           "view_span_deg"]
