@@ -73,7 +73,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     # A frame spanning a narrow arc cannot tell a tilt from a constant and a shift: match without
     # the tilt harmonic there (the Gauss-Newton fit below still refines pitch and roll).
     tilt = tilt_determinable(np.isfinite(q))
-    query = prepare_query(q, tilt, min_observed=8)
+    query = prepare_query(q, tilt, min_observed=4 if frames else 8)
     s = score_profiles(world_n[None].astype(np.float32), query, all_shifts=True)[0]
     shifts = np.arange(n) * 360.0 / n
     dist = np.abs((shifts - heading_prior_deg + 180.0) % 360.0 - 180.0)
