@@ -13,7 +13,7 @@ from ..errors import ParameterError, SkyfixError
 from .attitude import fit_attitude
 from .config import MAX_PRIOR_GRID_POINTS
 from .forward import body_profile, harmonic_tilt, relevel, residual_profile
-from .scoring import body_distances, robust_cost, score_points
+from .scoring import Renders, body_distances, robust_cost, score_points
 
 
 def prior_grid(dem, prior_xy, radius_m, step_m):
@@ -46,7 +46,7 @@ def inside_dem(dem, xs, ys, margin):
 
 
 def refine_grid(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_tilt, workers,
-            max_moves=3):
+            max_moves=3, renders=None):
     """Local grid search (9 x 9 per level, 4x finer each level) around (x, y) [m].
 
     When the best point lies on the grid's edge the level is re-centred there and redone (at most
@@ -68,7 +68,8 @@ def refine_grid(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_t
                 break
             gx, gy = gx[ok], gy[ok]
             sc, sh = score_points(dem, gx, gy, q, camera_height_m=camera_height_m, planet=planet,
-                                   n_bins=n, remove_tilt=remove_tilt, workers=workers)
+                                   n_bins=n, remove_tilt=remove_tilt, workers=workers,
+                                   renders=renders)
             i = int(np.argmin(sc))
             on_edge = max(abs(gx[i] - x), abs(gy[i] - y)) > 3.5 * step
             x, y = float(gx[i]), float(gy[i])
@@ -93,13 +94,12 @@ def refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, plan
     search is only approximate and biased the fine position by 5-15 m; levelling the query with
     the attitude fitted at the candidate (far horizon: insensitive to metres) removes that bias.
     Returns (x, y, score, local, attitude, clipped cost, residual profile [deg])."""
-    from ..horizon import render_horizons
-
     n = q.size
 
+    renders = Renders(dem, camera_height_m=camera_height_m, planet=planet)
+
     def world_at(x, y):
-        return render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
-                               azimuth_bins=config.render_bins).elevation_deg[0]
+        return renders.horizons([x], [y], config.render_bins)[0][0]
 
     def fit(world, yaw0, p0, r0, restarts):
         return fit_attitude(q, world, yaw0, p0, r0, restarts_deg=restarts,
@@ -114,7 +114,7 @@ def refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, plan
         return ql if np.isfinite(ql).sum() >= 20 else q
 
     kw = dict(camera_height_m=camera_height_m, planet=planet,
-              remove_tilt=config.match.remove_tilt, workers=config.match.workers)
+              remove_tilt=config.match.remove_tilt, workers=config.match.workers, renders=renders)
     world = world_at(cx, cy)
     p0, r0 = harmonic_tilt(q, body_profile(world, ch, n_bins=n))
     att = fit(world, ch, prior_pitch_deg + p0, prior_roll_deg + r0, config.restarts_deg)
@@ -148,18 +148,16 @@ def polish_position(dem, q, x, y, att, *, camera_height_m, planet, render_bins, 
     ``dem_sigma_m`` [m]: weigh bins by the DEM's trust there (:func:`robust_cost`).
     Returns (x, y, attitude, cost, residual profile [deg]).
     """
-    from ..horizon import render_horizons
-
     kw = dict(prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+    renders = Renders(dem, camera_height_m=camera_height_m, planet=planet)
 
     def evaluate(xs, ys, a0):
         xs, ys = np.asarray(xs, float), np.asarray(ys, float)
         ok = inside_dem(dem, xs, ys, 0.0)
         out = [(np.inf, None, None)] * xs.size
         if ok.any():
-            hb = render_horizons(dem, xs[ok], ys[ok], camera_height_m=camera_height_m,
-                                 planet=planet, azimuth_bins=render_bins)
-            for i, wi, di in zip(np.flatnonzero(ok), hb.elevation_deg, hb.skyline_distance_m):
+            els, dists = renders.horizons(xs[ok], ys[ok], render_bins)
+            for i, wi, di in zip(np.flatnonzero(ok), els, dists):
                 a = fit_attitude(q, wi, a0.yaw_deg, a0.pitch_deg, a0.roll_deg, restarts_deg=(0.0,), **kw)
                 r = residual_profile(q, wi, a, **kw)
                 dist = body_distances(di, a.yaw_deg, q.size) if dem_sigma_m else None

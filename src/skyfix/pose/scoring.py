@@ -19,16 +19,46 @@ def profile_arrays(profile):
     return el, noise
 
 
-def render_points(dem, xs, ys, *, camera_height_m, planet, n_bins):
-    """(N, n_bins) float32 world-frame skylines [deg] at (xs, ys) [m], bin-averaged."""
+class Renders:
+    """Skylines rendered from one DEM at exact points, kept for reuse within one candidate's
+    refinement: its grid levels re-centre on points already rendered and its polish's rings
+    overlap (a quarter of a fix's renders were repeats). A point's skyline does not depend on
+    the others rendered with it, so a kept one is the one a new render would give."""
+
+    def __init__(self, dem, *, camera_height_m, planet):
+        self._dem, self._h, self._planet = dem, camera_height_m, planet
+        self._kept = {}
+
+    def horizons(self, xs, ys, bins):
+        """(elevation [deg], distance of the skyline's terrain [m]): float32 (N, bins) each."""
+        from ..horizon import render_horizons
+
+        keys = [(float(x), float(y), int(bins)) for x, y in zip(np.ravel(xs), np.ravel(ys))]
+        new = [i for i, k in enumerate(keys) if k not in self._kept]
+        if new:
+            hb = render_horizons(self._dem, [keys[i][0] for i in new], [keys[i][1] for i in new],
+                                 camera_height_m=self._h, planet=self._planet, azimuth_bins=bins)
+            for j, i in enumerate(new):
+                self._kept[keys[i]] = (hb.elevation_deg[j].copy(), hb.skyline_distance_m[j].copy())
+        el = np.stack([self._kept[k][0] for k in keys]) if keys else np.zeros((0, bins), np.float32)
+        dist = np.stack([self._kept[k][1] for k in keys]) if keys else np.zeros((0, bins), np.float32)
+        return el, dist
+
+
+def render_points(dem, xs, ys, *, camera_height_m, planet, n_bins, renders=None):
+    """(N, n_bins) float32 world-frame skylines [deg] at (xs, ys) [m], bin-averaged
+    (``renders``: a :class:`Renders` of this DEM and camera height to take them from)."""
     from ..horizon import render_horizons
 
     # A measured bin averages the skyline over its width: render 5 sub-bins per bin and average,
     # or sharp ridges bias the fine position (point samples vs bin means).
     k = 5
-    hb = render_horizons(dem, xs, ys, camera_height_m=camera_height_m, planet=planet,
-                         azimuth_bins=n_bins * k)
-    p = np.nan_to_num(hb.elevation_deg, nan=0.0)
+    if renders is not None:
+        el = renders.horizons(xs, ys, n_bins * k)[0]
+    else:
+        el = render_horizons(dem, xs, ys, camera_height_m=camera_height_m, planet=planet,
+                             azimuth_bins=n_bins * k).elevation_deg
+    p = np.nan_to_num(el, nan=0.0)
     return np.roll(p, k // 2, axis=1).reshape(p.shape[0], n_bins, k).mean(axis=2).astype(np.float32)
 
 
@@ -123,10 +153,12 @@ def robust_scores(p, q, *, remove_tilt=True, workers=2, rounds=2):
     return sc, sh, qm
 
 
-def score_points(dem, xs, ys, q, *, camera_height_m, planet, n_bins, remove_tilt=True, workers=2):
+def score_points(dem, xs, ys, q, *, camera_height_m, planet, n_bins, remove_tilt=True, workers=2,
+                 renders=None):
     """(scores [deg^2], shifts [bins]) of skylines rendered at (xs, ys) [m] against the query
-    ``q`` [deg], by :func:`robust_scores`."""
-    p = render_points(dem, xs, ys, camera_height_m=camera_height_m, planet=planet, n_bins=n_bins)
+    ``q`` [deg], by :func:`robust_scores` (``renders``: see :func:`render_points`)."""
+    p = render_points(dem, xs, ys, camera_height_m=camera_height_m, planet=planet, n_bins=n_bins,
+                      renders=renders)
     sc, sh, _ = robust_scores(p, q, remove_tilt=remove_tilt, workers=workers)
     return sc, sh
 
