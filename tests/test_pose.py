@@ -478,3 +478,30 @@ def test_the_calibrated_sigma_widens_with_the_residual_and_never_shrinks():
     # the fit's held-out coverage is recorded beside it, against the claim
     # (held out by site: 70 % within 1 sigma, 89 % within 2, against 63 % and 98 % claimed)
     assert m["cv_within_1_sigma"] >= m["claimed"][0] - 0.05 and m["cv_within_2_sigma"] >= 0.85
+
+
+def test_kept_renders_equal_fresh_ones_and_are_not_redone(monkeypatch):
+    """The refinement's kept skylines: the same numbers as a fresh render of each point alone,
+    and a point asked for again is not rendered again."""
+    import skyfix.horizon as horizon
+    from skyfix.pose.scoring import Renders
+
+    dem = _bumpy_dem()
+    xs, ys = np.array([400.0, 410.0, 400.0, 620.5]), np.array([500.0, 500.0, 500.0, 610.25])
+    rendered = []
+    real = horizon.render_horizons
+
+    def counting(dem_, x, y, **kw):
+        rendered.extend(zip(np.ravel(x), np.ravel(y)))
+        return real(dem_, x, y, **kw)
+
+    monkeypatch.setattr(horizon, "render_horizons", counting)
+    r = Renders(dem, camera_height_m=1.5, planet="earth")
+    el, dist = r.horizons(xs, ys, 720)
+    el2, _ = r.horizons(xs[::-1], ys[::-1], 720)
+    assert len(rendered) == 3  # (400, 500) once, and nothing on the second call
+    for i in range(xs.size):
+        one = real(dem, [xs[i]], [ys[i]], camera_height_m=1.5, planet="earth", azimuth_bins=720)
+        assert np.array_equal(el[i], one.elevation_deg[0], equal_nan=True)
+        assert np.array_equal(dist[i], one.skyline_distance_m[0], equal_nan=True)
+    assert np.array_equal(el2, el[::-1], equal_nan=True)

@@ -34,12 +34,12 @@ class Renders:
         from ..horizon import render_horizons
 
         keys = [(float(x), float(y), int(bins)) for x, y in zip(np.ravel(xs), np.ravel(ys))]
-        new = [i for i, k in enumerate(keys) if k not in self._kept]
+        new = list(dict.fromkeys(k for k in keys if k not in self._kept))
         if new:
-            hb = render_horizons(self._dem, [keys[i][0] for i in new], [keys[i][1] for i in new],
+            hb = render_horizons(self._dem, [k[0] for k in new], [k[1] for k in new],
                                  camera_height_m=self._h, planet=self._planet, azimuth_bins=bins)
-            for j, i in enumerate(new):
-                self._kept[keys[i]] = (hb.elevation_deg[j].copy(), hb.skyline_distance_m[j].copy())
+            for j, k in enumerate(new):
+                self._kept[k] = (hb.elevation_deg[j].copy(), hb.skyline_distance_m[j].copy())
         el = np.stack([self._kept[k][0] for k in keys]) if keys else np.zeros((0, bins), np.float32)
         dist = np.stack([self._kept[k][1] for k in keys]) if keys else np.zeros((0, bins), np.float32)
         return el, dist
