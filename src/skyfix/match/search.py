@@ -267,6 +267,16 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
         heading_map[r_, c_] = sh * (360.0 / n)
         return raw_.shape[0]
 
+    def push(raw_, r_, c_):
+        """Queue positions for the exact pass; score the queue once it holds a batch."""
+        nonlocal pend_n, n_exact, t_exact
+        pend.append((raw_, r_, c_))
+        pend_n += raw_.shape[0]
+        if pend_n >= min(config.slice_rows, EXACT_BATCH):
+            tb = time.perf_counter()
+            n_exact += flush()
+            t_exact += time.perf_counter() - tb
+
     blocks = _elevation_blocks(db)
     blocks = _prefetch(blocks) if config.prefetch else ((b, 0.0) for b in blocks)
     with _blas_threads(max(1, config.workers - 1) if config.prefetch else config.workers):
@@ -294,12 +304,7 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
                 t_coarse += time.perf_counter() - ta
                 for s0 in range(0, idx.size, EXACT_BATCH):
                     part = idx[s0:s0 + EXACT_BATCH]
-                    pend.append((elev[part], rr[part], cc[part]))
-                    pend_n += part.size
-                    if pend_n >= min(config.slice_rows, EXACT_BATCH):
-                        tb = time.perf_counter()
-                        n_exact += flush()
-                        t_exact += time.perf_counter() - tb
+                    push(elev[part], rr[part], cc[part])
                 t0 = time.perf_counter()
                 continue
             idx_all = np.arange(bx.size) if sel is None else sel
@@ -315,15 +320,9 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
                         np.arange(idx.size)
                     t_coarse += time.perf_counter() - ta
                     # Survivors are few per slice: batch them, FFT calls cost ~100 us each.
-                    pend.append((raw[part], rr[idx[part]], cc[idx[part]]))
-                    pend_n += part.size
+                    push(raw[part], rr[idx[part]], cc[idx[part]])
                 else:
-                    pend.append((raw, rr[idx], cc[idx]))
-                    pend_n += idx.size
-                if pend_n >= min(config.slice_rows, EXACT_BATCH):
-                    tb = time.perf_counter()
-                    n_exact += flush()
-                    t_exact += time.perf_counter() - tb
+                    push(raw, rr[idx], cc[idx])
             t0 = time.perf_counter()
         tb = time.perf_counter()
         t_read += tb - t0

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .forward import BodyProfiler
+from .lm import levenberg_marquardt
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,22 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
         d = (yaw - center + 180.0) % 360.0 - 180.0
         return center + float(np.clip(d, -yaw_window_deg, yaw_window_deg))
 
+    def normal(th, r, w):
+        jac = np.empty((r.size, 4))
+        for i in range(3):
+            e = np.zeros(3)
+            e[i] = h
+            jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)  # dr/dtheta
+        jac[:, 3] = -1.0  # dr/d(offset): a nuisance, the median is removed anyway
+        jw = jac * w[:, None]
+        return jac.T @ jw, jw.T @ r
+
+    def clamp(th):
+        th = th.copy()
+        th[0] = in_window(th[0])
+        th[1:] = np.clip(th[1:], -30.0, 30.0)
+        return th
+
     best = None
     h = 0.02
     offsets = [(0.0, 0.0, 0.0)] + [(dy, dp, dr) for dy in restarts_deg for dp in restarts_deg
@@ -75,37 +92,7 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
             if 1.4826 * np.median(np.abs(rb - np.median(rb))) <= accept_deg:
                 break
         th = np.array([in_window(yaw0_deg + dy), pitch0_deg + dp, roll0_deg + dr], float)
-        lam = 1e-3
-        r = resid(th)
-        w, cost = robust(r)
-        a = None
-        for _ in range(iterations):
-            if a is None:  # a rejected step leaves th, r and w as they were: so is the system
-                jac = np.empty((r.size, 4))
-                for i in range(3):
-                    e = np.zeros(3)
-                    e[i] = h
-                    jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)  # dr/dtheta
-                jac[:, 3] = -1.0  # dr/d(offset): a nuisance, the median is removed anyway
-                jw = jac * w[:, None]
-                a = jac.T @ jw
-                g = jw.T @ r
-            step = np.linalg.solve(a + lam * np.diag(np.diag(a) + 1e-9), -g)[:3]
-            th_new = th + step
-            th_new[0] = in_window(th_new[0])
-            th_new[1:] = np.clip(th_new[1:], -30.0, 30.0)
-            r_new = resid(th_new)
-            w_new, cost_new = robust(r_new)
-            if cost_new < cost:
-                th, r, w, cost = th_new, r_new, w_new, cost_new
-                a = None
-                lam = max(lam / 4, 1e-6)
-                if np.max(np.abs(step)) < 1e-4:
-                    break
-            else:
-                lam *= 8
-                if lam > 1e4:
-                    break
+        th, r, w, cost = levenberg_marquardt(th, resid, robust, normal, clamp, iterations)
         if best is None or cost < best[0]:
             best = (cost, th.copy(), r.copy(), w.copy())
     cost, th, r, w = best

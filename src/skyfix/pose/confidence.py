@@ -109,9 +109,11 @@ def structureless_cap(conf: float, relief_deg: float, noise_deg: float) -> float
     return min(conf, 0.05) if relief_deg <= 2.0 * noise_deg else conf
 
 
-def residual_correlation_bins(resid, max_lag=60, floor=0.05):
+def residual_correlation_bins(resid, max_lag=60, floor=0.05, circular=True):
     """Integrated autocorrelation length [bins] of a residual profile (NaN = unobserved):
     ``1 + 2 sum_k rho_k`` over lags until ``rho_k`` drops below ``floor``, at least 1.
+    ``circular``: the series closes on itself (a 360-deg profile), else it is open (a frame's
+    columns).
 
     Detection errors are smooth along the skyline (a sub-pixel bias over a ridge, a frame's
     pan error), so neighbouring bins do not bring independent information; the number of
@@ -127,10 +129,15 @@ def residual_correlation_bins(resid, max_lag=60, floor=0.05):
     tau = 1.0
     n = r.size
     for k in range(1, min(max_lag, n // 2) + 1):
-        both = ok & np.roll(ok, -k)  # profiles are circular
+        if circular:
+            both = ok & np.roll(ok, -k)
+            prod = r * np.roll(r, -k)
+        else:
+            both = ok[:-k] & ok[k:]
+            prod = r[:-k] * r[k:]
         if both.sum() < 10:
             break
-        rho = float(np.mean((r * np.roll(r, -k))[both])) / var
+        rho = float(np.mean(prod[both])) / var
         if rho < floor:
             break
         tau += 2.0 * rho

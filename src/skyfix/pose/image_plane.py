@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera, az_el_to_direction, r_world_cam
+from .confidence import residual_correlation_bins
+from .lm import levenberg_marquardt
 
 
 @dataclass(frozen=True)
@@ -140,32 +142,14 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
             jac[:, i] = (resid(th + e) - resid(th - e)) / (2 * h)
         return jac
 
+    def normal(th, r, w):
+        jac = jacobian(th)
+        jw = jac * w[:, None]
+        return jac.T @ jw, jw.T @ r
+
     def solve(th):
-        th = clamp(np.asarray(th, float))
-        r = resid(th)
-        w, cost = weights(r)
-        lam, a = 1e-3, None
-        for _ in range(iterations):
-            if a is None:
-                jac = jacobian(th)
-                jw = jac * w[:, None]
-                a, g = jac.T @ jw, jw.T @ r
-            try:
-                step = np.linalg.solve(a + lam * np.diag(np.diag(a) + 1e-9), -g)
-            except np.linalg.LinAlgError:
-                break
-            th_new = clamp(th + step)
-            r_new = resid(th_new)
-            w_new, cost_new = weights(r_new)
-            if cost_new < cost:
-                th, r, w, cost, a = th_new, r_new, w_new, cost_new, None
-                lam = max(lam / 4, 1e-6)
-                if np.max(np.abs(step)) < 1e-4:
-                    break
-            else:
-                lam *= 8
-                if lam > 1e4:
-                    break
+        th, r, w, _ = levenberg_marquardt(clamp(np.asarray(th, float)), resid, weights, normal,
+                                          clamp, iterations)
         return th, r, w
 
     def fixed_cost(r):
@@ -186,7 +170,7 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
     sig2 = float(np.sum(w * r * r) / max(1, r.size - 3))
     # neighbouring residuals share a detection error (a bias over a ridge): inflate by the
     # integrated autocorrelation length of the residuals, in samples
-    inflate = _correlation_length(np.where(good, r, np.nan))
+    inflate = residual_correlation_bins(np.where(good, r, np.nan), max_lag=30, circular=False)
     try:
         cov = np.linalg.inv(jac.T @ (jac * w[:, None])) * sig2 * inflate
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))
@@ -195,28 +179,6 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
     mad = float(1.4826 * np.median(np.abs(r - np.median(r))))
     return ImageAttitude(float(th[0] % 360.0), float(th[1]), float(th[2]), *map(float, sd), mad,
                          int(obs.size))
-
-
-def _correlation_length(r, max_lag=30, floor=0.05):
-    """``1 + 2 sum_k rho_k`` of a residual series (NaN = left out) until rho drops below
-    ``floor``; at least 1."""
-    ok = np.isfinite(r)
-    if ok.sum() < 10:
-        return 1.0
-    x = np.where(ok, r - np.mean(r[ok]), 0.0)
-    var = float(np.mean(x[ok] ** 2))
-    if var <= 0:
-        return 1.0
-    tau = 1.0
-    for k in range(1, min(max_lag, x.size // 2) + 1):
-        both = ok[:-k] & ok[k:]
-        if both.sum() < 10:
-            break
-        rho = float(np.mean((x[:-k] * x[k:])[both])) / var
-        if rho < floor:
-            break
-        tau += 2.0 * rho
-    return max(1.0, tau)
 
 
 def frames_from_acquisition(acq, skylines):
