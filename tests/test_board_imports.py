@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -119,3 +120,35 @@ def test_board_commands_get_one_malloc_arena():
     r = subprocess.run([sys.executable, "-c", "from skyfix.cli.heap import one_malloc_arena; "
                         "print(one_malloc_arena())"], capture_output=True, text=True, timeout=60)
     assert r.stdout.strip() == "True", r.stderr
+
+
+def test_board_heap_gives_large_blocks_back():
+    """With the board's heap settings a freed 8 MB array leaves no anonymous memory behind; with
+    glibc's dynamic mmap threshold (one arena alone) the second such array came from the heap
+    and stayed resident after it was freed."""
+    import platform
+
+    libc, _ = platform.libc_ver()
+    if libc != "glibc" or not Path("/proc/self/status").exists():
+        pytest.skip("glibc and /proc needed")
+    prog = (
+        "import sys, numpy as np\n"
+        "from skyfix.cli import heap\n"
+        "print(getattr(heap, sys.argv[1])())\n"
+        "def anon():\n"
+        "    return next(int(l.split()[1]) // 1024 for l in open('/proc/self/status')\n"
+        "                if l.startswith('RssAnon'))\n"
+        "a = np.ones(1 << 20); del a\n"  # mapped; freeing it raises the dynamic threshold
+        "base = anon()\n"
+        "b = np.ones(1 << 20)\n"
+        "pin = [bytearray(64) for _ in range(1000)]\n"  # small blocks above it hold the top
+        "del b\n"
+        "print(anon() - base)\n")
+    left = {}
+    for setting in ("board_heap", "one_malloc_arena"):
+        r = subprocess.run([sys.executable, "-c", prog, setting], capture_output=True, text=True,
+                           timeout=60)
+        took, mb = r.stdout.split()
+        assert took == "True", r.stderr
+        left[setting] = int(mb)
+    assert left["board_heap"] <= 1 and left["one_malloc_arena"] >= 7, left

@@ -58,9 +58,9 @@ class LazyGroup(click.Group):
             return None
         module, attr, _ = COMMANDS[name]
         if name in BOARD:
-            from .heap import one_malloc_arena
+            from .heap import board_heap
 
-            one_malloc_arena()
+            board_heap()
         try:
             mod = importlib.import_module(f"skyfix.cli.{module}")
         except ModuleNotFoundError as e:
