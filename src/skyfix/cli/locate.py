@@ -257,7 +257,8 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
             f"database of {len(db.x_coords) * len(db.y_coords):,} positions at {db.spacing_m:g} m"
             if db is not None else "", f"DEM {dem.shape[1]} x {dem.shape[0]} cells of {dem.cell_m:g} m"
             if dem is not None else ""]))
-    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path)
+    frames = []  # the frames' detected rows: a narrow view's attitude is also solved in the image
+    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames)
     if profile_path is not None:
         notes += _check_camera_height(db, db_path, cam_h)
     from ..match import PRESETS
@@ -269,7 +270,7 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
         fix, mres = _locate(prof, db=db, dem=dem, prior_xy=prior, prior_radius_m=prior_radius_m,
                             prior_pitch_deg=pp, prior_roll_deg=pr, camera_height_m=cam_h,
                             config=PoseConfig(match=PRESETS[preset]), return_match=True,
-                            notes=tuple(notes))
+                            notes=tuple(notes), frames=frames)
         st.result = (f"({fix.x:.1f}, {fix.y:.1f}) +- {fix.position_sigma_m:.2g} m, heading "
                      f"{fix.heading_deg:.2f} deg from true north, confidence {fix.confidence:.2f}")
     from .provenance import provenance

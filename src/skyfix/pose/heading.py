@@ -16,19 +16,14 @@ from .confidence import (calibrated_sigma, confidence_features, confidence_from_
                          load_confidence_model, residual_correlation_bins, structureless_cap)
 from .fix import DETERMINED_SIGMA_DEG, HeadingFix, crs_and_lonlat
 from .forward import body_profile, harmonic_tilt, residual_profile
-from .image_plane import fit_attitude_image, view_span_deg
+from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
+                          image_plane_attitude, view_span_deg)
 from .scoring import profile_arrays
 
 
 #: Confidence at most, of a heading pinned to the edge of its search window.
 PINNED_HEADING_CONFIDENCE = 0.05
 
-#: [deg] frames spanning at most this much are also solved in the image plane
-IMAGE_PLANE_MAX_SPAN_DEG = 120.0
-#: confidence at most, when the image-plane yaw lies more than 1 deg from the profile fit's
-SOLVES_DISAGREE_CONFIDENCE = 0.5
-#: azimuth bins of the horizon rendered for the image-plane solve (0.05 deg: ~1 px of a navcam)
-IMAGE_PLANE_RENDER_BINS = 7200
 
 
 def at_window_edge(heading_deg, prior_deg, window_deg, tol_deg=1e-6) -> bool:
@@ -103,16 +98,10 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         conf = min(conf, PINNED_HEADING_CONFIDENCE)
     img = None
     if frames and view_span_deg(frames) <= IMAGE_PLANE_MAX_SPAN_DEG:
-        fine = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
-                               azimuth_bins=IMAGE_PLANE_RENDER_BINS).elevation_deg[0]
-        # restarts over the prior's uncertainty, as the NASA Ames study did (27 there): the
-        # profile's answer can sit in a wrong basin when the view is narrow
-        starts = [(heading_prior_deg + dy, prior_pitch_deg + dp, prior_roll_deg + dr)
-                  for dy in np.linspace(-0.75, 0.75, 4) * min(window_deg, 10.0)
-                  for dp in (-3.0, 0.0, 3.0) for dr in (-3.0, 0.0, 3.0)]
-        img = fit_attitude_image(frames, fine, att.yaw_deg, att.pitch_deg, att.roll_deg,
-                                 yaw_window_deg=window_deg, yaw_center_deg=heading_prior_deg,
-                                 starts=starts)
+        img = image_plane_attitude(frames, dem, x, y, att.yaw_deg, att.pitch_deg, att.roll_deg,
+                                   camera_height_m=camera_height_m, planet=planet,
+                                   prior=(heading_prior_deg, prior_pitch_deg, prior_roll_deg),
+                                   window_deg=window_deg)
     yaw, pitch, roll = (img.yaw_deg, img.pitch_deg, img.roll_deg) if img is not None else \
         (att.yaw_deg, att.pitch_deg, att.roll_deg)
     if img is not None and abs((img.yaw_deg - att.yaw_deg + 180.0) % 360.0 - 180.0) > 1.0:

@@ -52,6 +52,12 @@ COLUMN_STEP = 4
 MISS_PX = 40.0
 #: a restart wins only below this share of the first start's residual cost
 RESTART_GAIN = 0.7
+#: [deg] frames spanning at most this much are also solved in the image plane
+IMAGE_PLANE_MAX_SPAN_DEG = 120.0
+#: confidence at most, when the image-plane yaw lies more than 1 deg from the profile fit's
+SOLVES_DISAGREE_CONFIDENCE = 0.5
+#: azimuth bins of the horizon rendered for the image-plane solve (0.05 deg: ~1 px of a navcam)
+IMAGE_PLANE_RENDER_BINS = 7200
 
 
 class _Projector:
@@ -181,6 +187,29 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
                          int(obs.size))
 
 
+def image_plane_attitude(frames, dem, x, y, yaw_deg, pitch_deg, roll_deg, *, camera_height_m,
+                         planet=None, prior=None, window_deg=None):
+    """:func:`fit_attitude_image` at (x, y) [m] on ``dem`` from the profile fit's yaw, pitch and
+    roll [deg], the horizon rendered there at IMAGE_PLANE_RENDER_BINS. With ``prior`` (yaw,
+    pitch, roll [deg]) and ``window_deg`` [deg], also from restarts over the prior's
+    uncertainty, as the NASA Ames study did (27 there): over a narrow view the profile's answer
+    can sit in a wrong basin; yaw stays within the window."""
+    from ..horizon import render_horizons
+
+    fine = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
+                           azimuth_bins=IMAGE_PLANE_RENDER_BINS).elevation_deg[0]
+    starts = ()
+    if prior is not None:
+        h0, p0, r0 = prior
+        half = min(window_deg if window_deg is not None else 10.0, 10.0)
+        starts = [(h0 + dy, p0 + dp, r0 + dr) for dy in np.linspace(-0.75, 0.75, 4) * half
+                  for dp in (-3.0, 0.0, 3.0) for dr in (-3.0, 0.0, 3.0)]
+    return fit_attitude_image(frames, fine, yaw_deg, pitch_deg, roll_deg,
+                              yaw_window_deg=window_deg,
+                              yaw_center_deg=prior[0] if prior is not None else None,
+                              starts=starts)
+
+
 def frames_from_acquisition(acq, skylines):
     """:class:`FrameRows` of an acquisition's frames with a detected skyline."""
     out = []
@@ -203,5 +232,6 @@ def view_span_deg(frames) -> float:
     return float(min(360.0, (np.ptp(pans) if pans.size > 1 else 0.0) + max(spans)))
 
 
-__all__ = ["FrameRows", "ImageAttitude", "fit_attitude_image", "frames_from_acquisition",
-           "view_span_deg"]
+__all__ = ["IMAGE_PLANE_MAX_SPAN_DEG", "IMAGE_PLANE_RENDER_BINS", "SOLVES_DISAGREE_CONFIDENCE",
+           "FrameRows", "ImageAttitude", "fit_attitude_image", "frames_from_acquisition",
+           "image_plane_attitude", "view_span_deg"]

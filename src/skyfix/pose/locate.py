@@ -41,6 +41,8 @@ from .confidence import (calibrated_sigma, confidence_features, confidence_from_
                          structureless_cap)
 from .config import PoseConfig
 from .fix import Fix, crs_and_lonlat
+from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
+                          image_plane_attitude, view_span_deg)
 from .refine import inside_dem, prior_grid, refine_candidates
 from .scoring import clipped_costs, profile_arrays, render_points, robust_scores
 
@@ -133,7 +135,8 @@ def _segment_candidates(db, q, config, known, *, prior_xy=None, prior_radius_m=N
 def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
            prior_pitch_deg: float = 0.0, prior_roll_deg: float = 0.0,
            camera_height_m: float | None = None, planet=None, config: PoseConfig = PoseConfig(),
-           model: dict | None = None, return_match: bool = False, notes: tuple = ()):
+           model: dict | None = None, return_match: bool = False, notes: tuple = (),
+           frames=None):
     """Position, heading and attitude from a body-frame profile.
 
     profile : :class:`skyfix.formats.Profile` (frame ``body``, levelled with the attitude prior)
@@ -146,6 +149,9 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         database search compared skylines seen from another height: the position sigma is widened
         by the difference (added in quadrature) and a note says so
     notes : what the caller already knows the fix should say (a forced DEM, ...)
+    frames : the frames' detected rows (:class:`~skyfix.pose.image_plane.FrameRows`): with a DEM,
+        a view spanning at most ``IMAGE_PLANE_MAX_SPAN_DEG`` gets its heading, pitch and roll
+        solved again in the image plane at the fix (as :func:`estimate_heading` does)
     Returns a :class:`Fix` (and the :class:`skyfix.match.MatchResult` with ``return_match``).
     """
     if getattr(profile, "frame", "body") not in ("body", None):
@@ -258,6 +264,16 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
                                    psig, tilt)
         conf = structureless_cap(confidence_from_features(feat, model, "locate"), relief, noise)
         psig = calibrated_sigma(psig, feat, model, "locate")
+    if frames and dem is not None and view_span_deg(frames) <= IMAGE_PLANE_MAX_SPAN_DEG:
+        img = image_plane_attitude(frames, dem, fx, fy, heading, pitch, roll,
+                                   camera_height_m=camera_height_m, planet=planet)
+        if img is not None:
+            if abs((img.yaw_deg - heading + 180.0) % 360.0 - 180.0) > 1.0:
+                conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)
+                notes.append(f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
+                             "heading lies more than 1 deg from the profile fit's")
+            heading, pitch, roll = img.yaw_deg, img.pitch_deg, img.roll_deg
+            hsig = max(hsig, img.yaw_sigma_deg)
     degenerate = degenerate_search(db, dem, fx, fy, prior_xy, prior_radius_m,
                                    config.tolerance_m if db is not None else 1.0,
                                    config.grid_step_m)
