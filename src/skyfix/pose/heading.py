@@ -68,7 +68,9 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     # A frame spanning a narrow arc cannot tell a tilt from a constant and a shift: match without
     # the tilt harmonic there (the Gauss-Newton fit below still refines pitch and roll).
     tilt = tilt_determinable(np.isfinite(q))
-    query = prepare_query(q, tilt, min_observed=4 if frames else 8)
+    # the image plane has the frames' columns: a skyline of a few bins is still solved there
+    in_image = bool(frames) and view_span_deg(frames) <= IMAGE_PLANE_MAX_SPAN_DEG
+    query = prepare_query(q, tilt, min_observed=4 if in_image else 8)
     s = score_profiles(world_n[None].astype(np.float32), query, all_shifts=True)[0]
     shifts = np.arange(n) * 360.0 / n
     dist = np.abs((shifts - heading_prior_deg + 180.0) % 360.0 - 180.0)
@@ -97,7 +99,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         # with a +-10 deg window gave the edge at confidence 0.9).
         conf = min(conf, PINNED_HEADING_CONFIDENCE)
     img = None
-    if frames and view_span_deg(frames) <= IMAGE_PLANE_MAX_SPAN_DEG:
+    if in_image:
         img = image_plane_attitude(frames, dem, x, y, att.yaw_deg, att.pitch_deg, att.roll_deg,
                                    camera_height_m=camera_height_m, planet=planet,
                                    prior=(heading_prior_deg, prior_pitch_deg, prior_roll_deg),

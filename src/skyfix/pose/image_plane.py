@@ -67,8 +67,8 @@ class _Projector:
         w = np.asarray(world_el_deg, np.float64)
         az = np.arange(w.size) * 360.0 / w.size
         ok = np.isfinite(w)
-        # the closed horizon, unrolled once past 360 so a frame across north is one piece
-        self._dirs = az_el_to_direction(np.r_[az[ok], az[ok] + 360.0], np.r_[w[ok], w[ok]])
+        # directions, not angles: a frame across north needs no unrolling
+        self._dirs = az_el_to_direction(az[ok], w[ok])
         self._frames = []
         for f in frames:
             r = np.asarray(f.rows, np.float64)
