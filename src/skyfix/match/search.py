@@ -52,7 +52,8 @@ class MatchConfig:
         with map errors, 0.1 deg noise, pitch and roll N(0, 3 deg)): with 2, the 40 full turns
         gave the same best position as with 1, at 2.8 instead of 5.2 s of CPU; of the 20
         120-deg views, 3 changed and 2 of those lost the true basin (the coarse score of a
-        narrow view is rougher from one grid step to the next). Hence ``stride_min_coverage``
+        narrow view is rougher from one grid step to the next; ``benchmarks/bench_search_recall.py``).
+        Hence ``stride_min_coverage``
     stride_min_coverage : the share of the azimuth bins the query must observe for the coarse
         stride to apply; a narrower view is searched with stride 1
     top_k : candidates returned, in distinct basins
