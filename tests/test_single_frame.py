@@ -113,3 +113,16 @@ def test_one_frame_located_on_a_prior_area_gets_its_attitude_from_the_image(dem_
     assert np.hypot(d["x"] - X, d["y"] - Y) < 8.0
     assert abs(d["pitch_deg"] - 2.0) < 0.15 and abs(d["roll_deg"] + 1.5) < 0.15
     assert _angle(d["grid_heading_deg"] - 40.0) < 0.5
+
+
+def test_view_span_goes_round_north():
+    from skyfix.camera import get_camera
+    from skyfix.pose.image_plane import FrameRows, view_span_deg
+
+    cam = get_camera("navcam")
+    rows = np.zeros(cam.width)
+    span = lambda pans: view_span_deg([FrameRows(cam, p, 10.0, rows) for p in pans])  # noqa: E731
+    assert span([0.0]) == pytest.approx(cam.hfov_deg)
+    assert span([350.0, 10.0]) == pytest.approx(20.0 + cam.hfov_deg)
+    assert span([0.0, 120.0, 240.0]) == pytest.approx(240.0 + cam.hfov_deg)
+    assert span(np.arange(0.0, 360.0, 30.0)) == 360.0

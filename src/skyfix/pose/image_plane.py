@@ -223,13 +223,14 @@ def frames_from_acquisition(acq, skylines):
 
 
 def view_span_deg(frames) -> float:
-    """Horizontal span [deg] the frames' detected columns cover together (pans + half widths),
-    an upper bound used to decide whether the view is narrow."""
+    """Horizontal span [deg] the frames cover together: the smallest arc holding every pan, plus
+    the widest field of view (an upper bound, used to decide whether the view is narrow)."""
     if not frames:
         return 0.0
-    spans = [f.camera.hfov_deg for f in frames]
-    pans = np.array([f.pan_deg for f in frames])
-    return float(min(360.0, (np.ptp(pans) if pans.size > 1 else 0.0) + max(spans)))
+    pans = np.sort(np.asarray([f.pan_deg for f in frames], float) % 360.0)
+    # the arc outside the largest gap between neighbouring pans, around the circle
+    gaps = np.diff(np.r_[pans, pans[0] + 360.0])
+    return float(min(360.0, 360.0 - gaps.max() + max(f.camera.hfov_deg for f in frames)))
 
 
 __all__ = ["IMAGE_PLANE_MAX_SPAN_DEG", "IMAGE_PLANE_RENDER_BINS", "SOLVES_DISAGREE_CONFIDENCE",
