@@ -126,3 +126,58 @@ def test_view_span_goes_round_north():
     assert span([350.0, 10.0]) == pytest.approx(20.0 + cam.hfov_deg)
     assert span([0.0, 120.0, 240.0]) == pytest.approx(240.0 + cam.hfov_deg)
     assert span(np.arange(0.0, 360.0, 30.0)) == 360.0
+
+
+def test_map_share_of_the_sigmas_matches_the_spread_of_fits_under_map_errors():
+    """The sigmas' map share (a linearised sandwich) against an independent Monte Carlo: terrain
+    heights drawn with the model's error (2 m rms, exponential correlation over 150 m, at every
+    skyline point and under the camera), rows rendered from that world through the camera
+    model, the nonlinear solve run on the map; the fits' spread must be what the sigmas say."""
+    from skyfix.camera import get_camera, r_world_cam
+    from skyfix.pose.image_plane import MAP_CORRELATION_M, FrameRows, fit_attitude_image
+    from skyfix.profile import horizon_rows
+
+    cam = get_camera("navcam")
+    az, el = _synthetic_world()
+    a = np.radians(az)
+    dist = 300.0 + 2500.0 * (0.5 + 0.5 * np.sin(2.0 * a + 1.0))  # [m] near and far ridges
+    truth = (123.4, 2.1, -1.3)
+    rot = r_world_cam(*truth, 20.0, 10.0)
+    seen = np.flatnonzero((az > 105.0) & (az < 182.0))  # the frame's bins and a margin
+    pts = np.r_[np.c_[dist[seen] * np.sin(a[seen]), dist[seen] * np.cos(a[seen])], [[0.0, 0.0]]]
+    gap = np.hypot(*(pts[:, None, :] - pts[None, :, :]).transpose(2, 0, 1))
+    chol = np.linalg.cholesky(np.exp(-gap / MAP_CORRELATION_M) + 1e-9 * np.eye(len(pts)))
+    sigma_m = 2.0
+    ref = fit_attitude_image([FrameRows(cam, 20.0, 10.0, horizon_rows(cam, az, el, rot))], el,
+                             *truth, world_dist_m=dist, dem_sigma_m=sigma_m)
+    assert ref.map_sigma_deg is not None and min(ref.map_sigma_deg) > 0.005
+    rng = np.random.default_rng(7)
+    fits = []
+    for _ in range(60):
+        e = sigma_m * chol @ rng.standard_normal(len(pts))
+        world = el.copy()
+        world[seen] += np.degrees((e[:-1] - e[-1]) / dist[seen])  # the terrain the camera saw
+        rows = horizon_rows(cam, az, world, rot)
+        f = fit_attitude_image([FrameRows(cam, 20.0, 10.0, rows)], el, *truth)
+        fits.append(((f.yaw_deg - truth[0] + 180.0) % 360.0 - 180.0, f.pitch_deg - truth[1],
+                     f.roll_deg - truth[2]))
+    spread = np.sqrt(np.mean(np.square(fits), axis=0))
+    # 60 draws: the rms itself is known to ~10 %
+    np.testing.assert_allclose(spread, ref.map_sigma_deg, rtol=0.3)
+    # and the reported sigmas hold the map's share
+    assert ref.pitch_sigma_deg >= ref.map_sigma_deg[1] and ref.roll_sigma_deg >= ref.map_sigma_deg[2]
+
+
+def test_dem_sigma_is_checked_and_widens_the_sigmas(dem_path, tmp_path):
+    """``--dem-sigma-m``: refused when negative, before any image is read; 0 (the DEM taken as
+    the world) gives sigmas no wider than the default 2 m, which must not be narrower."""
+    acq = _frame(dem_path, tmp_path / "acq", yaw=40.0, pan=0.0, prior=(3.5, -2.5))
+    base = ("attitude", acq, "--dem", dem_path, "--x", X, "--y", Y, "--heading-prior-deg", 46.0,
+            "--prior-north", "grid")
+    r = run(*base, "--dem-sigma-m", -1)
+    assert r.exit_code == 2 and "--dem-sigma-m" in r.output and "Traceback" not in r.output
+    wide, exact = (json.loads(run(*base, *extra).stdout) for extra in ((), ("--dem-sigma-m", 0)))
+    for k in ("heading_sigma_deg", "pitch_sigma_deg", "roll_sigma_deg"):
+        assert wide[k] >= exact[k]
+    assert wide["pitch_sigma_deg"] > exact["pitch_sigma_deg"]
+    assert wide["provenance"]["options"]["dem_sigma_m"] == 2.0

@@ -36,7 +36,9 @@ class PoseConfig:
         that bin's skyline (a near-field bin under a 2 m error is worth little, a ridge 5 km away
         nearly all), and the camera's height above the true ground is fitted (a residual
         ``dh / d``): the DEM's error under the rover moves every bin by that much
-        (:func:`skyfix.pose.scoring.robust_cost`)
+        (:func:`skyfix.pose.scoring.robust_cost`). The image-plane solve of a narrow view
+        (:mod:`skyfix.pose.image_plane`) widens its sigmas by what this error does to the
+        answer, with IMAGE_PLANE_DEM_SIGMA_M (2 m) where this is None
     """
 
     match: MatchConfig = MatchConfig()

@@ -34,7 +34,7 @@ def at_window_edge(heading_deg, prior_deg, window_deg, tol_deg=1e-6) -> bool:
 
 def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                      camera_height_m=1.5, planet=None, prior_pitch_deg=0.0, prior_roll_deg=0.0,
-                     render_bins=1440, model=None, frames=None) -> HeadingFix:
+                     render_bins=1440, model=None, frames=None, dem_sigma_m=None) -> HeadingFix:
     """Scenario 3: heading [deg] from a rough position (x, y) [m] and a heading prior [deg].
 
     ``heading_prior_deg`` is from grid north, as every azimuth inside skyfix (the CLI converts a
@@ -47,7 +47,8 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     a view spanning at most IMAGE_PLANE_MAX_SPAN_DEG is then solved again in the image plane
     from the profile fit's answer (:func:`~skyfix.pose.image_plane.fit_attitude_image`), and
     that answer, with its own sigmas, is the one reported; the confidence stays the profile
-    fit's.
+    fit's. ``dem_sigma_m`` [m]: the DEM's height error those sigmas allow for (None:
+    :data:`~skyfix.pose.image_plane.IMAGE_PLANE_DEM_SIGMA_M`; 0: the DEM is the world).
     """
     from ..horizon import render_horizons
 
@@ -103,7 +104,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         img = image_plane_attitude(frames, dem, x, y, att.yaw_deg, att.pitch_deg, att.roll_deg,
                                    camera_height_m=camera_height_m, planet=planet,
                                    prior=(heading_prior_deg, prior_pitch_deg, prior_roll_deg),
-                                   window_deg=window_deg)
+                                   window_deg=window_deg, dem_sigma_m=dem_sigma_m)
     yaw, pitch, roll = (img.yaw_deg, img.pitch_deg, img.roll_deg) if img is not None else \
         (att.yaw_deg, att.pitch_deg, att.roll_deg)
     if img is not None and abs((img.yaw_deg - att.yaw_deg + 180.0) % 360.0 - 180.0) > 1.0:

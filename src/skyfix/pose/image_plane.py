@@ -44,6 +44,8 @@ class ImageAttitude:
     roll_sigma_deg: float
     robust_rms_px: float
     n_columns: int
+    #: (yaw, pitch, roll) 1-sigma [deg] of the map's share alone (None: no map error modelled)
+    map_sigma_deg: tuple | None = None
 
 
 #: every this many detected columns is a residual (neighbouring columns are not independent)
@@ -56,6 +58,12 @@ RESTART_GAIN = 0.7
 IMAGE_PLANE_MAX_SPAN_DEG = 120.0
 #: confidence at most, when the image-plane yaw lies more than 1 deg from the profile fit's
 SOLVES_DISAGREE_CONFIDENCE = 0.5
+#: [m] the DEM's height error (rms) against the terrain the camera sees that the image-plane
+#: sigmas allow for, unless told otherwise (``skyfix heading --dem-sigma-m``): every real DEM
+#: is metres off (the simulator's map errors: 2 m, correlated over 150 m)
+IMAGE_PLANE_DEM_SIGMA_M = 2.0
+#: [m] correlation length (exponential) of that error on the ground
+MAP_CORRELATION_M = 150.0
 #: azimuth bins of the horizon rendered for the image-plane solve (0.05 deg: ~1 px of a navcam)
 IMAGE_PLANE_RENDER_BINS = 7200
 
@@ -63,12 +71,17 @@ IMAGE_PLANE_RENDER_BINS = 7200
 class _Projector:
     """Predicted skyline rows at the detected columns of each frame, for an attitude."""
 
-    def __init__(self, frames, world_el_deg):
+    def __init__(self, frames, world_el_deg, world_dist_m=None):
         w = np.asarray(world_el_deg, np.float64)
         az = np.arange(w.size) * 360.0 / w.size
         ok = np.isfinite(w)
         # directions, not angles: a frame across north needs no unrolling
         self._dirs = az_el_to_direction(az[ok], w[ok])
+        # (east, north) [m] of each bin's skyline point from the camera
+        self._points = None
+        if world_dist_m is not None:
+            d, a = np.asarray(world_dist_m, np.float64)[ok], np.radians(az[ok])
+            self._points = np.stack([d * np.sin(a), d * np.cos(a)], axis=1)
         self._frames = []
         for f in frames:
             r = np.asarray(f.rows, np.float64)
@@ -80,14 +93,22 @@ class _Projector:
     def observed(self):
         return np.concatenate([o for _, _, o in self._frames]) if self._frames else np.zeros(0)
 
-    def predict(self, yaw, pitch, roll):
-        out = []
+    def focal_px(self):
+        """Each detected column's focal length [px] (rows per radian of elevation)."""
+        return np.concatenate([np.full(c.size, f.camera.fy) for f, c, _ in self._frames]
+                              or [np.zeros(0)])
+
+    def predict(self, yaw, pitch, roll, points=False):
+        """Rows [px] at the detected columns (NaN where the horizon does not reach); with
+        ``points``, also the (east, north) [m] of each column's skyline point, (n, 2)."""
+        out, pts = [], []
         for f, cols, _ in self._frames:
             cam = f.camera
             d = self._dirs @ r_world_cam(yaw, pitch, roll, f.pan_deg, f.tilt_deg)
             u, v, front = cam.ray_to_pixel(d)
             keep = front & (u > -0.5 * cam.width) & (u < 1.5 * cam.width)
             pred = np.full(cols.size, np.nan)
+            pt = np.full((cols.size, 2), np.nan)
             if keep.sum() >= 2:
                 uu, vv = u[keep], v[keep]
                 # the visible piece: vertices in front, in order of azimuth; a column between two
@@ -96,13 +117,21 @@ class _Projector:
                 uu, vv = uu[order], vv[order]
                 inside = (cols >= uu[0]) & (cols <= uu[-1])
                 pred[inside] = np.interp(cols[inside], uu, vv)
+                if points:
+                    pk = self._points[keep][order]
+                    for i in range(2):
+                        pt[inside, i] = np.interp(cols[inside], uu, pk[:, i])
             out.append(pred)
-        return np.concatenate(out) if out else np.zeros(0)
+            pts.append(pt)
+        pred = np.concatenate(out) if out else np.zeros(0)
+        if points:
+            return pred, (np.concatenate(pts) if pts else np.zeros((0, 2)))
+        return pred
 
 
 def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
                        yaw_window_deg=None, yaw_center_deg=None, iterations=20,
-                       min_columns=12, starts=()):
+                       min_columns=12, starts=(), world_dist_m=None, dem_sigma_m=None):
     """Yaw, pitch, roll [deg] that put the world horizon (``world_el_deg``, bin k at
     ``k * 360 / m`` deg from grid north, rendered at the camera) on the detected rows.
 
@@ -112,10 +141,17 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
     cost at a fixed 2 px scale) is below RESTART_GAIN times the first one's.
     Levenberg-Marquardt with a numerical Jacobian and Huber weights (scale 2.5 x 1.4826 MAD,
     at least 1 px): columns on a false fragment or a rock weigh little. Yaw stays within
-    ``yaw_window_deg`` of ``yaw_center_deg`` when given. Returns an :class:`ImageAttitude`, or
-    None when fewer than ``min_columns`` columns are usable.
+    ``yaw_window_deg`` of ``yaw_center_deg`` when given.
+
+    The sigmas [deg] are the detection noise's (the residuals' spread, inflated for their
+    correlation) plus, with ``world_dist_m`` (each bin's skyline distance [m]) and
+    ``dem_sigma_m`` (the DEM's height error [m]), the spread the map's error gives the answer
+    (:func:`map_covariance`): over a near skyline the map, not the detector, is the limit, and
+    the residuals cannot show it (the fit absorbs a tilted near ridge into pitch and roll).
+    Returns an :class:`ImageAttitude`, or None when fewer than ``min_columns`` columns are
+    usable.
     """
-    proj = _Projector(frames, world_el_deg)
+    proj = _Projector(frames, world_el_deg, world_dist_m)
     if proj.n < min_columns:
         return None
     obs = proj.observed()
@@ -178,26 +214,60 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
     # integrated autocorrelation length of the residuals, in samples
     inflate = residual_correlation_bins(np.where(good, r, np.nan), max_lag=30, circular=False)
     try:
-        cov = np.linalg.inv(jac.T @ (jac * w[:, None])) * sig2 * inflate
+        info_inv = np.linalg.inv(jac.T @ (jac * w[:, None]))
+        cov = info_inv * sig2 * inflate
+        map_sd = None
+        if world_dist_m is not None and dem_sigma_m:
+            cov_map = map_covariance(proj, th, jac, w, info_inv, dem_sigma_m)
+            cov = cov + cov_map
+            map_sd = tuple(float(v) for v in np.sqrt(np.clip(np.diag(cov_map), 0, None)))
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     except np.linalg.LinAlgError:
-        sd = np.full(3, np.inf)
+        sd, map_sd = np.full(3, np.inf), None
     mad = float(1.4826 * np.median(np.abs(r - np.median(r))))
     return ImageAttitude(float(th[0] % 360.0), float(th[1]), float(th[2]), *map(float, sd), mad,
-                         int(obs.size))
+                         int(obs.size), map_sd)
+
+
+def map_covariance(proj, th, jac, w, info_inv, dem_sigma_m):
+    """The covariance [deg^2] the map's height error gives a fitted (yaw, pitch, roll).
+
+    The DEM is taken to be off by ``dem_sigma_m`` [m] rms, correlated as ``exp(-r /
+    MAP_CORRELATION_M)`` over ground distance ``r``. A column whose skyline point lies ``d`` away
+    then moves by ``f (e_sky - e_cam) / d`` px (``f`` the focal length [px], ``e_sky`` and
+    ``e_cam`` the errors at the skyline point and under the camera: a camera the map puts too
+    low sees every ridge too high), and the weighted least-squares answer by
+    ``A^-1 J^T W S W J A^-1``, ``S`` those moves' covariance [px^2].
+    """
+    pred, pts = proj.predict(*th, points=True)
+    ok = np.isfinite(pred) & np.isfinite(pts).all(axis=1)
+    if not ok.any():
+        return np.zeros((th.size, th.size))
+    p = pts[ok]
+    d = np.hypot(p[:, 0], p[:, 1])
+    gap = np.hypot(p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1])
+    near = np.exp(-d / MAP_CORRELATION_M)
+    # cov(e_sky_i - e_cam, e_sky_j - e_cam) / sigma^2, exponential correlation
+    c = np.exp(-gap / MAP_CORRELATION_M) - near[:, None] - near[None, :] + 1.0
+    g = proj.focal_px()[ok] / np.maximum(d, 1.0)
+    s = (dem_sigma_m ** 2) * c * g[:, None] * g[None, :]
+    jw = (jac * w[:, None])[ok]
+    return info_inv @ (jw.T @ s @ jw) @ info_inv
 
 
 def image_plane_attitude(frames, dem, x, y, yaw_deg, pitch_deg, roll_deg, *, camera_height_m,
-                         planet=None, prior=None, window_deg=None):
+                         planet=None, prior=None, window_deg=None, dem_sigma_m=None):
     """:func:`fit_attitude_image` at (x, y) [m] on ``dem`` from the profile fit's yaw, pitch and
     roll [deg], the horizon rendered there at IMAGE_PLANE_RENDER_BINS. With ``prior`` (yaw,
     pitch, roll [deg]) and ``window_deg`` [deg], also from restarts over the prior's
     uncertainty, as the NASA Ames study did (27 there): over a narrow view the profile's answer
-    can sit in a wrong basin; yaw stays within the window."""
+    can sit in a wrong basin; yaw stays within the window. ``dem_sigma_m`` [m]: the DEM's height
+    error the sigmas allow for (None: IMAGE_PLANE_DEM_SIGMA_M; 0: the DEM is the world)."""
     from ..horizon import render_horizons
 
-    fine = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
-                           azimuth_bins=IMAGE_PLANE_RENDER_BINS).elevation_deg[0]
+    hb = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
+                         azimuth_bins=IMAGE_PLANE_RENDER_BINS)
+    fine, dist = hb.elevation_deg[0], hb.skyline_distance_m[0]
     starts = ()
     if prior is not None:
         h0, p0, r0 = prior
@@ -207,7 +277,8 @@ def image_plane_attitude(frames, dem, x, y, yaw_deg, pitch_deg, roll_deg, *, cam
     return fit_attitude_image(frames, fine, yaw_deg, pitch_deg, roll_deg,
                               yaw_window_deg=window_deg,
                               yaw_center_deg=prior[0] if prior is not None else None,
-                              starts=starts)
+                              starts=starts, world_dist_m=dist,
+                              dem_sigma_m=IMAGE_PLANE_DEM_SIGMA_M if dem_sigma_m is None else dem_sigma_m)
 
 
 def frames_from_acquisition(acq, skylines):
@@ -233,6 +304,7 @@ def view_span_deg(frames) -> float:
     return float(min(360.0, 360.0 - gaps.max() + max(f.camera.hfov_deg for f in frames)))
 
 
-__all__ = ["IMAGE_PLANE_MAX_SPAN_DEG", "IMAGE_PLANE_RENDER_BINS", "SOLVES_DISAGREE_CONFIDENCE",
+__all__ = ["IMAGE_PLANE_DEM_SIGMA_M", "IMAGE_PLANE_MAX_SPAN_DEG", "MAP_CORRELATION_M",
+           "IMAGE_PLANE_RENDER_BINS", "SOLVES_DISAGREE_CONFIDENCE",
            "FrameRows", "ImageAttitude", "fit_attitude_image", "frames_from_acquisition",
-           "image_plane_attitude", "view_span_deg"]
+           "image_plane_attitude", "map_covariance", "view_span_deg"]

@@ -266,7 +266,8 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         psig = calibrated_sigma(psig, feat, model, "locate")
     if frames and dem is not None and view_span_deg(frames) <= IMAGE_PLANE_MAX_SPAN_DEG:
         img = image_plane_attitude(frames, dem, fx, fy, heading, pitch, roll,
-                                   camera_height_m=camera_height_m, planet=planet)
+                                   camera_height_m=camera_height_m, planet=planet,
+                                   dem_sigma_m=config.dem_sigma_m)
         if img is not None:
             if abs((img.yaw_deg - heading + 180.0) % 360.0 - 180.0) > 1.0:
                 conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)
