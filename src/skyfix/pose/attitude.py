@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .forward import BodyProfiler
-from .lm import levenberg_marquardt
+from .lm import levenberg_marquardt, median
 
 
 @dataclass(frozen=True)
@@ -48,10 +48,10 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
 
     def resid(th):
         r = qo - profile(th[0], th[1], th[2])[obs]
-        return r - np.median(r)
+        return r - median(r)
 
     def robust(r):
-        s = max(1.4826 * np.median(np.abs(r)), 0.02)
+        s = max(1.4826 * median(np.abs(r)), 0.02)
         k = 2.5 * s
         a = np.abs(r)
         return np.where(a <= k, 1.0, k / np.maximum(a, 1e-12)), np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k))
@@ -89,7 +89,7 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
     for k_start, (dy, dp, dr) in enumerate(offsets):
         if k_start == 1 and accept_deg is not None:
             rb = best[2]
-            if 1.4826 * np.median(np.abs(rb - np.median(rb))) <= accept_deg:
+            if 1.4826 * median(np.abs(rb - median(rb))) <= accept_deg:
                 break
         th = np.array([in_window(yaw0_deg + dy), pitch0_deg + dp, roll0_deg + dr], float)
         th, r, w, cost = levenberg_marquardt(th, resid, robust, normal, clamp, iterations)

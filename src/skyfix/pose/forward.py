@@ -47,8 +47,20 @@ class BodyProfiler:
         b = self._d @ rot.T
         azb = np.degrees(np.arctan2(b[:, 0], b[:, 1])) % 360.0
         elb = np.degrees(np.arctan2(b[:, 2], np.hypot(b[:, 0], b[:, 1])))
-        order = np.argsort(azb)
-        return np.interp(self._centres, azb[order], elb[order], period=360.0)
+        # Under a tilt of a few degrees the rotated azimuths still increase, only rotated round
+        # the circle: one roll orders them (sorting was a quarter of an attitude fit), and the
+        # periodic interpolation is np.interp's own (period=360: wrap, sort, pad) without its
+        # sort. Ties or a fold (a steep tilt) take np.interp's path as it is.
+        xs = azb % 360.0  # what np.interp's period wrap does to them (-1e-17 % 360 is 360.0)
+        k = int(np.argmin(xs))
+        xs = np.roll(xs, -k)
+        if not np.all(xs[1:] > xs[:-1]):
+            order = np.argsort(azb)
+            return np.interp(self._centres, azb[order], elb[order], period=360.0)
+        es = np.roll(elb, -k)
+        xp = np.concatenate((xs[-1:] - 360.0, xs, xs[:1] + 360.0))
+        fp = np.concatenate((es[-1:], es, es[:1]))
+        return np.interp(self._centres % 360.0, xp, fp)
 
 
 def relevel(profile_deg, pitch_deg, roll_deg, *, prior_pitch_deg=0.0, prior_roll_deg=0.0):
