@@ -312,6 +312,9 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
               help="Search +/- this around the prior [deg] (180 without a prior).")
 @click.option("--camera-height-m", type=float, callback=camera_height,
               help="Camera height [m] (default: the acquisition's).")
+@click.option("--position-sigma-m", type=float, default=None,
+              help="How far the rough position may be off [m]: skylines near enough for that to "
+                   "move them by degrees weigh less; 0: every bin alike [default: 10].")
 @click.option("--dem-sigma-m", type=float, default=None,
               help="The DEM's height error (rms) [m] against the terrain the camera sees, which the "
                    "sigmas of a narrow view (one frame) allow for; 0: the DEM is the world "
@@ -320,7 +323,7 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
               help="Heading JSON (default stdout).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg, prior_north,
-            window_deg, camera_height_m, dem_sigma_m, out, overwrite):
+            window_deg, camera_height_m, position_sigma_m, dem_sigma_m, out, overwrite):
     """Find the heading only, from a rough position."""
     import math
 
@@ -337,6 +340,11 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
         raise ParameterError(f"--heading-prior-deg must be a finite number, got {heading_prior_deg}")
     if not (math.isfinite(window_deg) and 0 < window_deg <= 180):
         raise ParameterError(f"--window-deg must be within (0, 180] deg, got {window_deg}")
+    if position_sigma_m is None:
+        from ..pose.heading import HEADING_POSITION_SIGMA_M as position_sigma_m
+    if not (math.isfinite(position_sigma_m) and position_sigma_m >= 0):
+        raise ParameterError(f"--position-sigma-m must be a finite number of metres >= 0, got "
+                             f"{position_sigma_m}")
     if dem_sigma_m is None:
         from ..pose.image_plane import IMAGE_PLANE_DEM_SIGMA_M as dem_sigma_m
     if not (math.isfinite(dem_sigma_m) and dem_sigma_m >= 0):
@@ -357,7 +365,7 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
                   else heading_prior_deg)
     hf = estimate_heading(prof, dem, x, y, grid_prior, window_deg, camera_height_m=h,
                           prior_pitch_deg=pp, prior_roll_deg=pr, frames=frames,
-                          dem_sigma_m=dem_sigma_m)
+                          dem_sigma_m=dem_sigma_m, position_sigma_m=position_sigma_m)
     if window_deg < 180 and at_window_edge(hf.grid_heading_deg, grid_prior, window_deg):
         click.echo(f"warning: the heading {hf.heading_deg:.1f} deg is on the edge of the window "
                    f"{heading_prior_deg:g} +- {window_deg:g} deg: the best match lies outside it "
@@ -368,7 +376,8 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     d["provenance"] = provenance(
         acq_dir=acq_dir, profile_path=profile_path, dem=dem, dem_path=dem_path, profile=prof,
         options={"heading_prior_deg": heading_prior_deg, "prior_north": prior_north,
-                 "window_deg": window_deg, "camera_height_m": h, "dem_sigma_m": dem_sigma_m},
+                 "window_deg": window_deg, "camera_height_m": h, "dem_sigma_m": dem_sigma_m,
+                 "position_sigma_m": position_sigma_m},
         estimated=["heading_deg", "pitch_deg", "roll_deg"], echoed=["x", "y"],
         convergence_deg=hf.meridian_convergence_deg)
     if out is not None:

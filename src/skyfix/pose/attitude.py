@@ -29,7 +29,7 @@ class Attitude:
 def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.0, *,
                  restarts_deg=(-2.5, 0.0, 2.5), prior_pitch_deg=0.0, prior_roll_deg=0.0,
                  yaw_window_deg=None, yaw_center_deg=None, iterations=12,
-                 accept_deg=None) -> Attitude:
+                 accept_deg=None, world_weights=None) -> Attitude:
     """Yaw, pitch, roll [deg] (and a height offset) that best map the world horizon onto the query.
 
     Gauss-Newton with a numerical Jacobian and Huber weights (outlier bins), restarted from
@@ -38,6 +38,9 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
     ``yaw0_deg``), restarts included. With ``accept_deg`` [deg],
     the fit from the first guess alone is kept when its robust residual level (1.4826 MAD) is
     below it: the restarts are there to escape false minima, which do not fit at the noise level.
+    ``world_weights`` (m,): how far each world-horizon bin can be trusted, in [0, 1] (a skyline
+    near a camera whose position is uncertain: :func:`~skyfix.pose.heading.position_weights`);
+    carried to the body frame at ``yaw0_deg`` and multiplied into the Huber weights.
     """
     q = np.asarray(query_deg, np.float64)
     obs = np.isfinite(q)
@@ -50,11 +53,22 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
         r = qo - profile(th[0], th[1], th[2])[obs]
         return r - median(r)
 
+    prior_w = None
+    if world_weights is not None:
+        ww = np.asarray(world_weights, float)
+        az_w = np.arange(ww.size) * 360.0 / ww.size
+        az_b = (np.arange(n) * 360.0 / n + yaw0_deg) % 360.0
+        prior_w = np.interp(az_b, az_w, ww, period=360.0)[obs]
+
     def robust(r):
         s = max(1.4826 * median(np.abs(r)), 0.02)
         k = 2.5 * s
         a = np.abs(r)
-        return np.where(a <= k, 1.0, k / np.maximum(a, 1e-12)), np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k))
+        w = np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
+        c = np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k)
+        if prior_w is not None:
+            return w * prior_w, np.sum(c * prior_w)
+        return w, np.sum(c)
 
     center = yaw0_deg if yaw_center_deg is None else yaw_center_deg
 

@@ -23,6 +23,12 @@ from .scoring import profile_arrays
 
 #: Confidence at most, of a heading pinned to the edge of its search window.
 PINNED_HEADING_CONFIDENCE = 0.05
+#: [m] how far scenario 3's rough position is taken to be off unless told (``skyfix heading
+#: --position-sigma-m``): its rover knows where it is from odometry to metres, every 50 m
+HEADING_POSITION_SIGMA_M = 10.0
+#: [deg] the noise floor the position weights are measured against (a profile's own noise
+#: estimate can be far smaller on a clean render)
+POSITION_WEIGHT_NOISE_DEG = 0.1
 
 
 
@@ -32,9 +38,21 @@ def at_window_edge(heading_deg, prior_deg, window_deg, tol_deg=1e-6) -> bool:
     return d >= window_deg - tol_deg
 
 
+def position_weights(skyline_distance_m, position_sigma_m, noise_deg):
+    """Per-bin trust [0, 1] of a horizon rendered at a position known to ``position_sigma_m`` [m]:
+    a camera that far off sees a skyline point ``d`` [m] away moved by about
+    ``position_sigma_m / d`` rad, in azimuth and in elevation alike (a ridge 100 m away by 6 deg
+    for 10 m), against the profile's noise ``noise_deg`` [deg]:
+    ``noise^2 / (noise^2 + (position_sigma_m / d)^2)``. Bins without a skyline distance weigh 1."""
+    d = np.asarray(skyline_distance_m, np.float64)
+    e = np.degrees(position_sigma_m / np.maximum(np.nan_to_num(d, nan=np.inf), 1.0))
+    return noise_deg ** 2 / (noise_deg ** 2 + e * e)
+
+
 def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                      camera_height_m=1.5, planet=None, prior_pitch_deg=0.0, prior_roll_deg=0.0,
-                     render_bins=1440, model=None, frames=None, dem_sigma_m=None) -> HeadingFix:
+                     render_bins=1440, model=None, frames=None, dem_sigma_m=None,
+                     position_sigma_m=HEADING_POSITION_SIGMA_M) -> HeadingFix:
     """Scenario 3: heading [deg] from a rough position (x, y) [m] and a heading prior [deg].
 
     ``heading_prior_deg`` is from grid north, as every azimuth inside skyfix (the CLI converts a
@@ -49,6 +67,10 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     that answer, with its own sigmas, is the one reported; the confidence stays the profile
     fit's. ``dem_sigma_m`` [m]: the DEM's height error those sigmas allow for (None:
     :data:`~skyfix.pose.image_plane.IMAGE_PLANE_DEM_SIGMA_M`; 0: the DEM is the world).
+    ``position_sigma_m`` [m]: how far the rough position may be off; the attitude fit weighs
+    each bin by :func:`position_weights` (0: every bin alike): near skylines, which a few metres
+    of position error move by degrees, no longer pull the heading (scenario 3 with map errors,
+    Sierra: 17 -> 20 of 20 within 1 deg).
     """
     from ..horizon import render_horizons
 
@@ -63,8 +85,14 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     q, noise = profile_arrays(profile)
     n = q.size
     dem.require_inside(np.array([x]), np.array([y]), "rough position")
-    world = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
-                            azimuth_bins=render_bins).elevation_deg[0]
+    if not (math.isfinite(position_sigma_m) and position_sigma_m >= 0):
+        raise ParameterError(f"position sigma must be a finite number of metres >= 0, got {position_sigma_m}")
+    hb = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
+                         azimuth_bins=render_bins)
+    world = hb.elevation_deg[0]
+    trust = (position_weights(hb.skyline_distance_m[0], position_sigma_m,
+                              max(noise, POSITION_WEIGHT_NOISE_DEG))
+             if position_sigma_m > 0 else None)
     world_n = np.nan_to_num(body_profile(world, 0.0, n_bins=n))
     # A frame spanning a narrow arc cannot tell a tilt from a constant and a shift: match without
     # the tilt harmonic there (the Gauss-Newton fit below still refines pitch and roll).
@@ -84,7 +112,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                        prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg,
                        yaw_window_deg=window_deg, yaw_center_deg=heading_prior_deg,
                        restarts_deg=(-2.5, 0.0, 2.5),
-                       accept_deg=2.0 * max(noise, 0.05))
+                       accept_deg=2.0 * max(noise, 0.05), world_weights=trust)
     # Landscape inside the window: best vs best shift more than 3 deg away.
     far = inwin & (np.abs((shifts - att.yaw_deg + 180.0) % 360.0 - 180.0) > 3.0)
     other = float(s[far].min()) if far.any() else np.inf

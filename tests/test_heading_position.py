@@ -1,0 +1,52 @@
+"""Scenario 3 from a rough position: a skyline near the camera, which the position's error moves
+by degrees, must not pull the heading (``skyfix heading --position-sigma-m``)."""
+
+import json
+import math
+
+import numpy as np
+from click.testing import CliRunner
+
+from conftest import shared_dem_path
+from skyfix.cli.main import cli
+from skyfix.dem import load_dem
+from skyfix.formats import Truth
+from skyfix.pose.heading import position_weights
+from skyfix.simulate import simulate_acquisition
+
+
+def test_position_weights_closed_form():
+    """noise^2 / (noise^2 + (sigma / d)^2), deg: a ridge 100 m away under a 10 m position error
+    moves by 5.73 deg; one at 50 km by 0.0115 deg; a bin without a skyline distance weighs 1."""
+    w = position_weights(np.array([100.0, 50e3, np.nan]), 10.0, 0.1)
+    e = math.degrees(0.1)
+    np.testing.assert_allclose(w[0], 0.01 / (0.01 + e * e), rtol=1e-12)
+    np.testing.assert_allclose(w[1], 0.01 / (0.01 + math.degrees(10.0 / 50e3) ** 2), rtol=1e-12)
+    assert w[2] == 1.0
+    assert np.all(position_weights(np.array([100.0, 5e3]), 0.0, 0.1) == 1.0)
+
+
+def test_heading_from_a_position_20_m_off_beside_near_terrain(tmp_path):
+    """A full turn in the Sierra where 42 % of the skyline lies within 300 m; the rough position
+    20 m west of the truth (scenario 3 allows metres). Weighing each bin by how far the position
+    error can move it: 0.06 deg off (measured); every bin alike: 3.4 deg off, the near slopes
+    dragging the fit."""
+    dem_path = shared_dem_path("sierra_nevada_30m")
+    tx, ty, yaw = -2009345.1033, 241834.5696, 284.3358
+    acq = simulate_acquisition(load_dem(dem_path), Truth(tx, ty, yaw, 0.0, 0.0), tmp_path / "acq",
+                               frames=12, seed=1)
+    base = ["heading", str(acq), "--dem", str(dem_path), "--x", str(tx - 20.0), "--y", str(ty),
+            "--heading-prior-deg", str(yaw + 3.0), "--prior-north", "grid"]
+
+    def error(*extra):
+        r = CliRunner().invoke(cli, base + list(extra))
+        assert r.exit_code == 0, r.output
+        d = json.loads(r.stdout)
+        return abs((d["grid_heading_deg"] - yaw + 180.0) % 360.0 - 180.0), d
+
+    weighted, d = error()
+    assert weighted < 0.3 and d["provenance"]["options"]["position_sigma_m"] == 10.0
+    alike, _ = error("--position-sigma-m", "0")
+    assert alike > 1.0
+    r = CliRunner().invoke(cli, base + ["--position-sigma-m", "-5"])
+    assert r.exit_code == 2 and "--position-sigma-m" in r.output and "Traceback" not in r.output
