@@ -50,3 +50,23 @@ def test_heading_from_a_position_20_m_off_beside_near_terrain(tmp_path):
     assert alike > 1.0
     r = CliRunner().invoke(cli, base + ["--position-sigma-m", "-5"])
     assert r.exit_code == 2 and "--position-sigma-m" in r.output and "Traceback" not in r.output
+
+
+def test_position_heading_sigma_closed_form():
+    """A skyline equally far all round does not turn under a translation; one ridge alone,
+    ``d`` away, turns by ``sigma / d``; two equal ridges 90 deg apart by ``sigma / (sqrt(2) d)``."""
+    from skyfix.pose.heading import position_heading_sigma_deg
+
+    n = 360
+    d = np.full(n, 2000.0)
+    assert position_heading_sigma_deg(d, np.ones(n), 10.0) < 1e-12
+    one = np.full(n, np.nan)
+    one[40] = 500.0
+    np.testing.assert_allclose(position_heading_sigma_deg(one, np.ones(n), 10.0),
+                               math.degrees(10.0 / 500.0), rtol=1e-12)
+    two = np.full(n, np.nan)
+    two[[0, 90]] = 500.0
+    w = np.zeros(n)
+    w[[0, 90]] = 1.0
+    np.testing.assert_allclose(position_heading_sigma_deg(two, w, 10.0),
+                               math.degrees(10.0 / 500.0) / math.sqrt(2.0), rtol=1e-12)

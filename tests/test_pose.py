@@ -173,7 +173,9 @@ def test_heading_sigma_matches_the_scatter_over_noise_draws(world):
     the spread of the estimates (ratio measured 1.0-1.35), and their mean is the truth. The query
     is a centred average of a 0.1 deg render over each 1 deg bin, built here (not with
     synthetic_profile). This is the fit's own sigma (``model={}``: no calibration); the
-    calibrated one skyfix reports is wider, for the systematic errors white noise lacks."""
+    calibrated one skyfix reports is wider, for the systematic errors white noise lacks. The
+    position is exact here (``position_sigma_m=0``: no position error to weigh bins by or to add
+    to the sigma)."""
     from skyfix.horizon import render_horizons
 
     dem, _ = world
@@ -187,10 +189,11 @@ def test_heading_sigma_matches_the_scatter_over_noise_draws(world):
         for _ in range(20):
             q = q0 + rng.normal(0.0, noise, 360)
             prof = Profile(q, np.full(360, noise), "body")
-            hf = estimate_heading(prof, dem, x, y, h + 3.0, 10.0, model={})
+            hf = estimate_heading(prof, dem, x, y, h + 3.0, 10.0, model={}, position_sigma_m=0.0)
             err.append(_ang(hf.heading_deg - h))
             sig.append(hf.heading_sigma_deg)
-        assert estimate_heading(prof, dem, x, y, h + 3.0, 10.0).heading_sigma_deg >= sig[-1]
+        assert estimate_heading(prof, dem, x, y, h + 3.0, 10.0,
+                                position_sigma_m=0.0).heading_sigma_deg >= sig[-1]
         err, sig = np.array(err), float(np.median(sig))
         assert 0.6 < np.std(err, ddof=1) / sig < 1.7
         assert abs(err.mean()) < 3 * sig / np.sqrt(20) + 0.005  # measured 0.004 and 0.005 deg

@@ -49,6 +49,28 @@ def position_weights(skyline_distance_m, position_sigma_m, noise_deg):
     return noise_deg ** 2 / (noise_deg ** 2 + e * e)
 
 
+def position_heading_sigma_deg(skyline_distance_m, weights, position_sigma_m):
+    """The heading's 1-sigma [deg] from a position known to ``position_sigma_m`` [m] (per axis):
+    a camera moved by ``(dx, dy)`` sees the skyline point of bin ``k`` (azimuth ``a_k`` from grid
+    north, ``d_k`` [m] away) turned by ``(dx cos a_k - dy sin a_k) / d_k`` rad, and the fit's yaw
+    is about their ``weights``-weighted mean, so its spread is
+    ``sigma |sum w_k (cos a_k, sin a_k) / d_k| / sum w_k``: zero for a skyline equally far all
+    round, ``sigma / d`` for one ridge alone. Bins without a skyline distance (no terrain) take
+    no part."""
+    d = np.asarray(skyline_distance_m, np.float64)
+    w = np.asarray(weights, np.float64)
+    ok = np.isfinite(d) & (d > 0)
+    if not ok.any() or position_sigma_m <= 0:
+        return 0.0
+    a = np.radians(np.arange(d.size) * 360.0 / d.size)[ok]
+    wi = w[ok] / d[ok]
+    total = float(np.sum(w[ok]))
+    if total <= 0:
+        return 0.0
+    return math.degrees(position_sigma_m * math.hypot(float(np.sum(wi * np.cos(a))),
+                                                      float(np.sum(wi * np.sin(a)))) / total)
+
+
 def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                      camera_height_m=1.5, planet=None, prior_pitch_deg=0.0, prior_roll_deg=0.0,
                      render_bins=1440, model=None, frames=None, dem_sigma_m=None,
@@ -70,7 +92,8 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     ``position_sigma_m`` [m]: how far the rough position may be off; the attitude fit weighs
     each bin by :func:`position_weights` (0: every bin alike): near skylines, which a few metres
     of position error move by degrees, no longer pull the heading (scenario 3 with map errors,
-    Sierra: 17 -> 20 of 20 within 1 deg).
+    Sierra: 17 -> 20 of 20 within 1 deg), and the heading's sigma adds what that position error
+    does to it (:func:`position_heading_sigma_deg`).
     """
     from ..horizon import render_horizons
 
@@ -147,6 +170,9 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                                                       prior_roll_deg=prior_roll_deg))
     inflate = math.sqrt(max(1.0, corr))
     hsig = calibrated_sigma(att.yaw_sigma_deg * inflate, feat, model, "heading")
+    if trust is not None:
+        hsig = math.hypot(hsig, position_heading_sigma_deg(hb.skyline_distance_m[0], trust,
+                                                          position_sigma_m))
     psig, rsig = att.pitch_sigma_deg * inflate, att.roll_sigma_deg * inflate
     if img is not None:
         # the image fit's formal sigmas see the detection noise but not the map's and the
