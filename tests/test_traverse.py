@@ -83,7 +83,7 @@ def _scripted(bad=(), outlier=(), fail=()):
     skyline."""
     calls = []
 
-    def heading(k, x, y, prior, window):
+    def heading(k, x, y, prior, window, position_sigma_m=None):
         calls.append(("h", k, window))
         if k in fail:
             raise SkyfixError("no skyline detected in any image")
@@ -220,7 +220,7 @@ def test_a_middling_fix_is_taken_only_where_the_track_corroborates_it(tmp_path):
     it lies 7.5 m off, although the 99.9 % gate alone would have let that through; one at 0.1 is
     never taken. A stop whose fix is not taken still gives its heading."""
     def measure_with(dx, conf):
-        def heading(k, x, y, prior, window):
+        def heading(k, x, y, prior, window, position_sigma_m=None):
             return Measurement(0.0, 0.1, 0.99, skyline_distance_m=3000.0)
 
         def fix(k, x, y, r):
@@ -249,7 +249,7 @@ def test_a_middling_fix_is_taken_only_where_the_track_corroborates_it(tmp_path):
 
 
 def test_the_operator_is_asked_when_the_owed_fix_keeps_failing_though_headings_are_taken(tmp_path):
-    def heading(k, x, y, prior, window):
+    def heading(k, x, y, prior, window, position_sigma_m=None):
         return Measurement(0.0, 0.1, 0.99, skyline_distance_m=3000.0)
 
     def fix(k, x, y, r):

@@ -18,8 +18,8 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
     :func:`skyfix.pose.estimate_heading` or :func:`skyfix.pose.locate` (with ``db`` when given,
     else on ``dem`` in the prior disc)."""
     from ..formats import load_acquisition
-    from ..horizon import render_horizons
     from ..pose import PoseConfig, estimate_heading, locate
+    from ..pose.heading import HEADING_POSITION_SIGMA_M
     from ..profile import acquisition_profile
 
     cfg = pose_config or PoseConfig()
@@ -37,16 +37,15 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
             cache[k] = (prof, acq)
         return cache[k]
 
-    def heading(k, x, y, prior_deg, window_deg):
+    def heading(k, x, y, prior_deg, window_deg, position_sigma_m=None):
         prof, acq = profile(k)
+        # the track's own position sigma [m]: near skylines weigh by it, and the heading's sigma
+        # carries it (so the Measurement has no skyline distance for run.py to widen it again)
+        ps = HEADING_POSITION_SIGMA_M if position_sigma_m is None else float(position_sigma_m)
         hf = estimate_heading(prof, dem, x, y, prior_deg, window_deg,
                               camera_height_m=acq.camera_height_m, prior_pitch_deg=acq.prior_pitch_deg,
-                              prior_roll_deg=acq.prior_roll_deg)
-        hb = render_horizons(dem, [x], [y], camera_height_m=acq.camera_height_m, azimuth_bins=360)
-        dist = hb.skyline_distance_m
-        d = float(np.nanmedian(dist)) if dist is not None and np.isfinite(dist).any() else None
-        return Measurement(hf.grid_heading_deg, hf.heading_sigma_deg, hf.confidence,
-                           skyline_distance_m=d)
+                              prior_roll_deg=acq.prior_roll_deg, position_sigma_m=ps)
+        return Measurement(hf.grid_heading_deg, hf.heading_sigma_deg, hf.confidence)
 
     def fix(k, x, y, radius_m):
         prof, acq = profile(k)

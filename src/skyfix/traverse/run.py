@@ -75,7 +75,8 @@ class TraverseConfig:
 class Measurement:
     """One skyline measurement, grid north: x, y [m] (None for a heading), heading [deg], 1-sigmas,
     calibrated confidence, and the skyline's median distance [m] (for the heading's sensitivity to
-    the position; None when unknown)."""
+    the position, where the heading's sigma does not already carry it; None when unknown or when
+    it does)."""
 
     heading_deg: float
     heading_sigma_deg: float
@@ -88,8 +89,8 @@ class Measurement:
 
 @dataclass
 class Measure:
-    """heading(k, x, y, prior_deg, window_deg) and fix(k, x, y, radius_m) -> :class:`Measurement`
-    for stop k; either raises :class:`skyfix.errors.SkyfixError` when the stop's skyline cannot be
+    """heading(k, x, y, prior_deg, window_deg, position_sigma_m) (the track's position 1-sigma
+    [m] at the stop) and fix(k, x, y, radius_m) -> :class:`Measurement` for stop k; either raises :class:`skyfix.errors.SkyfixError` when the stop's skyline cannot be
     used."""
 
     heading: Callable
@@ -106,11 +107,13 @@ def _fix_due(driven_m, leg_m, filt, cfg, owed, last) -> bool:
 
 def _attempt_heading(measure, k, filt, cfg):
     window = max(cfg.heading_window_deg, 3.0 * filt.heading_sigma_deg)
-    m = measure.heading(k, filt.state[0], filt.state[1], filt.state[2], min(window, 180.0))
+    m = measure.heading(k, filt.state[0], filt.state[1], filt.state[2], min(window, 180.0),
+                        filt.position_sigma_m)
     retried = False
     if m.confidence < cfg.min_confidence and window < 180.0:
         retried = True  # the truth may lie outside the window, or the view was poor
-        m2 = measure.heading(k, filt.state[0], filt.state[1], filt.state[2], min(2 * window, 180.0))
+        m2 = measure.heading(k, filt.state[0], filt.state[1], filt.state[2], min(2 * window, 180.0),
+                             filt.position_sigma_m)
         if m2.confidence > m.confidence:
             m = m2
     return m, retried
@@ -158,8 +161,8 @@ def _apply(filt: PoseFilter, kind: str, m: Measurement, cfg) -> tuple[str, str, 
 def _heading_sigma(m: Measurement, filt: PoseFilter, cfg) -> float:
     s = max(m.heading_sigma_deg, cfg.heading_sigma_floor_deg)
     if m.x is None and m.skyline_distance_m:
-        # measured at the predicted position: a position error p moves the skyline by about
-        # p / d rad at distance d
+        # measured at the predicted position by a measure that did not allow for its error: a
+        # position error p moves the skyline by about p / d rad at distance d
         s = math.hypot(s, math.degrees(filt.position_sigma_m / m.skyline_distance_m))
     return s
 
