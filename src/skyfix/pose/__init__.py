@@ -7,9 +7,10 @@ forward model (:mod:`.forward`), a calibrated confidence and sigmas (:mod:`.conf
 retry with parts of the skyline left out. :func:`estimate_heading` (:mod:`.heading`) is the
 heading-only mode of scenario 3; a narrow view is also solved in the image plane
 (:mod:`.image_plane`: the rendered horizon through each frame's camera against its detected
-rows). Both attitude fits share one Levenberg-Marquardt loop (:mod:`.lm`). Results are :class:`Fix` and :class:`HeadingFix` (:mod:`.fix`);
-settings :class:`PoseConfig` (:mod:`.config`); :func:`synthetic_profile` (:mod:`.synthetic`)
-renders query profiles for tests, benchmarks and calibration.
+rows). Both attitude fits share one Levenberg-Marquardt loop (:mod:`.lm`). Results are
+:class:`Fix` and :class:`HeadingFix` (:mod:`.fix`); settings :class:`PoseConfig`
+(:mod:`.config`); :func:`synthetic_profile` (:mod:`.synthetic`) renders query profiles for
+tests, benchmarks and calibration.
 """
 
 # the matcher's names, re-exported here since skyfix.pose has always offered them

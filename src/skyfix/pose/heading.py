@@ -109,7 +109,8 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     n = q.size
     dem.require_inside(np.array([x]), np.array([y]), "rough position")
     if not (math.isfinite(position_sigma_m) and position_sigma_m >= 0):
-        raise ParameterError(f"position sigma must be a finite number of metres >= 0, got {position_sigma_m}")
+        raise ParameterError(f"position sigma must be a finite number of metres >= 0, got "
+                             f"{position_sigma_m}")
     hb = render_horizons(dem, [x], [y], camera_height_m=camera_height_m, planet=planet,
                          azimuth_bins=render_bins)
     world = hb.elevation_deg[0]

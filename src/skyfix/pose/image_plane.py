@@ -146,12 +146,14 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
     The sigmas [deg] are the detection noise's (the residuals' spread, inflated for their
     correlation) plus, with ``world_dist_m`` (each bin's skyline distance [m]) and
     ``dem_sigma_m`` (the DEM's height error [m]), the spread the map's error gives the answer
-    (:func:`map_covariance`): over a near skyline the map, not the detector, is the limit, and
+    (:func:`_map_covariance`): over a near skyline the map, not the detector, is the limit, and
     the residuals cannot show it (the fit absorbs a tilted near ridge into pitch and roll).
     Returns an :class:`ImageAttitude`, or None when fewer than ``min_columns`` columns are
     usable.
     """
-    proj = _Projector(frames, world_el_deg, world_dist_m)
+    map_model = world_dist_m is not None and bool(dem_sigma_m)
+    # the skyline points are only needed for the map's share of the sigmas
+    proj = _Projector(frames, world_el_deg, world_dist_m if map_model else None)
     if proj.n < min_columns:
         return None
     obs = proj.observed()
@@ -217,8 +219,8 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
         info_inv = np.linalg.inv(jac.T @ (jac * w[:, None]))
         cov = info_inv * sig2 * inflate
         map_sd = None
-        if world_dist_m is not None and dem_sigma_m:
-            cov_map = map_covariance(proj, th, jac, w, info_inv, dem_sigma_m)
+        if map_model:
+            cov_map = _map_covariance(proj, th, jac, w, info_inv, dem_sigma_m)
             cov = cov + cov_map
             map_sd = tuple(float(v) for v in np.sqrt(np.clip(np.diag(cov_map), 0, None)))
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))
@@ -229,7 +231,7 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
                          int(obs.size), map_sd)
 
 
-def map_covariance(proj, th, jac, w, info_inv, dem_sigma_m):
+def _map_covariance(proj, th, jac, w, info_inv, dem_sigma_m):
     """The covariance [deg^2] the map's height error gives a fitted (yaw, pitch, roll).
 
     The DEM is taken to be off by ``dem_sigma_m`` [m] rms, correlated as ``exp(-r /
@@ -278,7 +280,8 @@ def image_plane_attitude(frames, dem, x, y, yaw_deg, pitch_deg, roll_deg, *, cam
                               yaw_window_deg=window_deg,
                               yaw_center_deg=prior[0] if prior is not None else None,
                               starts=starts, world_dist_m=dist,
-                              dem_sigma_m=IMAGE_PLANE_DEM_SIGMA_M if dem_sigma_m is None else dem_sigma_m)
+                              dem_sigma_m=(IMAGE_PLANE_DEM_SIGMA_M if dem_sigma_m is None
+                                           else dem_sigma_m))
 
 
 def frames_from_acquisition(acq, skylines):
@@ -307,4 +310,4 @@ def view_span_deg(frames) -> float:
 __all__ = ["IMAGE_PLANE_DEM_SIGMA_M", "IMAGE_PLANE_MAX_SPAN_DEG", "MAP_CORRELATION_M",
            "IMAGE_PLANE_RENDER_BINS", "SOLVES_DISAGREE_CONFIDENCE",
            "FrameRows", "ImageAttitude", "fit_attitude_image", "frames_from_acquisition",
-           "image_plane_attitude", "map_covariance", "view_span_deg"]
+           "image_plane_attitude", "view_span_deg"]

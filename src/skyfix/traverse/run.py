@@ -90,8 +90,8 @@ class Measurement:
 @dataclass
 class Measure:
     """heading(k, x, y, prior_deg, window_deg, position_sigma_m) (the track's position 1-sigma
-    [m] at the stop) and fix(k, x, y, radius_m) -> :class:`Measurement` for stop k; either raises :class:`skyfix.errors.SkyfixError` when the stop's skyline cannot be
-    used."""
+    [m] at the stop) and fix(k, x, y, radius_m) -> :class:`Measurement` for stop k; either
+    raises :class:`skyfix.errors.SkyfixError` when the stop's skyline cannot be used."""
 
     heading: Callable
     fix: Callable
