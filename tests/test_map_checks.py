@@ -147,3 +147,25 @@ def test_a_camera_height_other_than_the_databases_is_used_and_widens_the_sigma(t
     assert np.hypot(fix["x"] - 412.0, fix["y"] - 387.0) < 1.0
     assert fix["position_sigma_m"] >= 2.5
     assert any("camera" in n for n in fix["notes"])
+
+
+def test_dem_sigma_sizes_the_position_sigma_not_the_fix(tmp_path, files, detection_forbidden):
+    """``locate --dem-sigma-m``: refused when negative, before any image is read; otherwise the
+    same fix, with a position sigma that holds the map's share (default 2 m) or not (0)."""
+    dem_path, _, db_path = files
+    r = _run("locate", _acquisition(tmp_path), "--db", db_path, "--dem", dem_path,
+             "--dem-sigma-m", -1)
+    assert r.exit_code == 2 and "--dem-sigma-m" in r.output and "Traceback" not in r.output
+    path = tmp_path / "p.json"
+    write_profile_json(path, _profile(_dem()))
+    fixes = []
+    for extra in ((), ("--dem-sigma-m", 0)):
+        out = tmp_path / f"fix{len(fixes)}.json"
+        r = _run("locate", "--profile", path, "--db", db_path, "--dem", dem_path, "-o", out, *extra)
+        assert r.exit_code == 0, r.output
+        fixes.append(json.loads(out.read_text()))
+    wide, exact = fixes
+    assert (wide["x"], wide["y"], wide["heading_deg"]) == (exact["x"], exact["y"], exact["heading_deg"])
+    assert wide["position_sigma_m"] > exact["position_sigma_m"] + 0.5
+    assert wide["provenance"]["options"]["dem_sigma_m"] == 2.0
+    assert exact["provenance"]["options"]["dem_sigma_m"] == 0.0

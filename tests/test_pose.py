@@ -1,6 +1,7 @@
 """Pose: known answers on a synthetic DEM (own position, rotated heading, known tilt, flat)."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -29,8 +30,9 @@ def world():
     return dem, MemoryStore.from_dem(dem, xs, ys, block=16)
 
 
+# the synthetic DEM is the world the profiles come from: no map error for the sigmas to allow for
 CFG = PoseConfig(match=MatchConfig(top_k=4), refine_candidates=2, levels=2,
-                 restarts_deg=(0.0,))
+                 restarts_deg=(0.0,), map_sigma_m=0.0)
 
 
 def _ang(a):
@@ -301,6 +303,21 @@ def test_cli_locate_and_heading_from_a_profile(world, tmp_path):
     assert abs(_ang(json.loads(r.stdout)["heading_deg"] - 300.0)) < 1.0
 
 
+def test_the_position_sigma_allows_for_the_maps_height_error(world):
+    """By default (``map_sigma_m`` 2 m) the sigma holds what a 2 m map error does to the fix,
+    added in quadrature to the fit's own; 0 (the DEM is the world) leaves the fit's. The fix
+    itself does not change."""
+    dem, st = world
+    prof = synthetic_profile(dem, 733.3, 871.9, 123.4, noise_deg=0.05, rng=3)
+    exact = locate(prof, db=st, dem=dem, config=CFG)
+    real = locate(prof, db=st, dem=dem, config=replace(CFG, map_sigma_m=PoseConfig().map_sigma_m))
+    assert (real.x, real.y, real.heading_deg) == (exact.x, exact.y, exact.heading_deg)
+    share = real.features["position_sigma_map_m"]
+    assert "position_sigma_map_m" not in exact.features
+    assert 1.0 < share < 50.0  # metres, on a 10 m DEM with hills 300-1000 m away
+    assert real.position_sigma_m == pytest.approx(math.hypot(exact.position_sigma_m, share))
+
+
 def test_tilted_query_with_zero_prior_is_located(world):
     # 10 deg class pitch/roll with a level prior: the source study's failure case (hundreds of m).
     dem, st = world
@@ -362,8 +379,6 @@ def test_false_fragment_that_misleads_the_database_search_is_left_out_on_retry(w
     # picks a basin 235 m away (fit residual 17x the noise). Searching again with each quarter of
     # the view left out in turn brings the true basin into the refined candidates, where the
     # whole profile's clipped cost prefers it (0.024 vs 0.18).
-    from dataclasses import replace
-
     dem, st = world
     tx, ty, th = 733.3, 871.9, 123.4
     prof = _with_near_rock(synthetic_profile(dem, tx, ty, th, noise_deg=0.1, rng=4), 250.0,

@@ -106,6 +106,16 @@ def map_offset_of(case_dir: Path) -> tuple[float, float]:
     return recorded_map_offset(data.get("simulation"))
 
 
+def _pose_config(dem_sigma_m):
+    """The localiser's settings for ``--dem-sigma-m``: the search weighs bins by that height error
+    and the sigmas allow for it (None: the defaults, an unweighted search and 2 m sigmas)."""
+    from .pose import PoseConfig
+
+    if dem_sigma_m is None:
+        return PoseConfig()
+    return PoseConfig(dem_sigma_m=dem_sigma_m, map_sigma_m=dem_sigma_m)
+
+
 def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.random.Generator,
              case_index: int) -> tuple[CaseResult, dict]:
     """One case through the board pipeline; returns the result and what the figures need."""
@@ -147,12 +157,10 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
                 kw = {"prior_xy": (truth.x + r * math.sin(ang), truth.y + r * math.cos(ang)),
                       "prior_radius_m": DRIFT_M * 1.25}
                 res.prior_offset_m = r
-            from .pose import PoseConfig
-
             fix = locate(profile, db=db if cfg.scenario == 1 else None, dem=dem,
                          prior_pitch_deg=acq.prior_pitch_deg, prior_roll_deg=acq.prior_roll_deg,
                          camera_height_m=acq.camera_height_m, planet=cfg.planet,
-                         config=PoseConfig(dem_sigma_m=cfg.dem_sigma_m), **kw)
+                         config=_pose_config(cfg.dem_sigma_m), **kw)
             res.fix_x, res.fix_y, res.fix_heading_deg = fix.x, fix.y, fix.grid_heading_deg
             res.fix_pitch_deg, res.fix_roll_deg = fix.pitch_deg, fix.roll_deg
             res.position_sigma_m, res.heading_sigma_deg = fix.position_sigma_m, fix.heading_sigma_deg

@@ -35,7 +35,9 @@ from .options import overwrite_option, traverse_path_options
               help="Render every set from a world that differs from the map (as DEMERR does); "
                    "position errors are then counted beyond the simulated misregistration.")
 @click.option("--dem-sigma-m", type=float, default=None,
-              help="The DEM's height error [m] the localiser allows for (PoseConfig.dem_sigma_m).")
+              help="The DEM's height error [m]: the localiser weighs bins by it and its sigmas "
+                   "allow for it (PoseConfig.dem_sigma_m and map_sigma_m) [default: unweighted, "
+                   "sigmas for 2 m].")
 @traverse_path_options
 @click.option("-o", "--out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @overwrite_option

@@ -205,11 +205,15 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
               help="Database search: fast (a coarse pass on 4-bin averages, then the best share "
                    "exactly), exact (every position scored exactly: slower, for checks), level "
                    "(no tilt harmonic: a camera known to be level, or a narrow view).")
+@click.option("--dem-sigma-m", type=float, default=None,
+              help="The DEM's height error (rms) [m] against the terrain the camera sees, which "
+                   "position_sigma_m (and a narrow view's attitude sigmas) allow for; 0: the DEM "
+                   "is the world. The fix itself does not depend on it [default: 2].")
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
 @click.option("--force", is_flag=True,
               help="Use a --dem other than the one the database was built from (the fix says so).")
 def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lon, prior_lat,
-           prior_radius_m, out, geojson, score_map, plot, preset, overwrite, force):
+           prior_radius_m, out, geojson, score_map, plot, preset, dem_sigma_m, overwrite, force):
     """Find position, heading and attitude from an acquisition (or a profile)."""
     import math
 
@@ -233,6 +237,11 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
         raise ParameterError("a prior position needs --prior-radius-m")
     if score_map is not None and db_path is None:
         raise ParameterError("--score-map needs --db (the map is the database's score)")
+    if dem_sigma_m is None:
+        from ..pose.map_error import MAP_DEM_SIGMA_M as dem_sigma_m
+    if not (math.isfinite(dem_sigma_m) and dem_sigma_m >= 0):
+        raise ParameterError(f"--dem-sigma-m must be a finite number of metres >= 0 (0: the DEM is "
+                             f"taken as the world), got {dem_sigma_m}")
     check_outputs(overwrite, ("--output", out, None), ("--geojson", geojson, None),
                   ("--score-map", score_map, GEOTIFF_SUFFIXES), ("--plot", plot, PLOT_FORMATS))
     # The database and the DEM are opened and checked against each other, and the acquisition's
@@ -269,7 +278,8 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     with stage("located") as st:
         fix, mres = _locate(prof, db=db, dem=dem, prior_xy=prior, prior_radius_m=prior_radius_m,
                             prior_pitch_deg=pp, prior_roll_deg=pr, camera_height_m=cam_h,
-                            config=PoseConfig(match=PRESETS[preset]), return_match=True,
+                            config=PoseConfig(match=PRESETS[preset], map_sigma_m=dem_sigma_m),
+                            return_match=True,
                             notes=tuple(notes), frames=frames)
         st.result = (f"({fix.x:.1f}, {fix.y:.1f}) +- {fix.position_sigma_m:.2g} m, heading "
                      f"{fix.heading_deg:.2f} deg from true north, confidence {fix.confidence:.2f}")
@@ -279,7 +289,7 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
                       dem_path=dem_path, profile=prof,
                       options={"preset": preset, "prior_xy": list(prior) if prior else None,
                                "prior_radius_m": prior_radius_m, "force": force,
-                               "camera_height_m": cam_h},
+                               "camera_height_m": cam_h, "dem_sigma_m": dem_sigma_m},
                       estimated=["x", "y", "heading_deg"] + ([] if dem is None else ["pitch_deg", "roll_deg"]),
                       echoed=[] if dem is not None else ["pitch_deg", "roll_deg"],
                       convergence_deg=fix.meridian_convergence_deg)
@@ -346,7 +356,7 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
         raise ParameterError(f"--position-sigma-m must be a finite number of metres >= 0, got "
                              f"{position_sigma_m}")
     if dem_sigma_m is None:
-        from ..pose.image_plane import IMAGE_PLANE_DEM_SIGMA_M as dem_sigma_m
+        from ..pose.map_error import MAP_DEM_SIGMA_M as dem_sigma_m
     if not (math.isfinite(dem_sigma_m) and dem_sigma_m >= 0):
         raise ParameterError(f"--dem-sigma-m must be a finite number of metres >= 0 (0: the DEM is "
                              f"taken as the world), got {dem_sigma_m}")

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..match import MatchConfig
+from .map_error import MAP_DEM_SIGMA_M
 
 
 @dataclass(frozen=True)
@@ -36,9 +37,13 @@ class PoseConfig:
         that bin's skyline (a near-field bin under a 2 m error is worth little, a ridge 5 km away
         nearly all), and the camera's height above the true ground is fitted (a residual
         ``dh / d``): the DEM's error under the rover moves every bin by that much
-        (:func:`skyfix.pose.scoring.robust_cost`). The image-plane solve of a narrow view
-        (:mod:`skyfix.pose.image_plane`) widens its sigmas by what this error does to the
-        answer, with IMAGE_PLANE_DEM_SIGMA_M (2 m) where this is None
+        (:func:`skyfix.pose.scoring.robust_cost`). Off by default: on map-error cases the
+        weighting pulled fixes farther than plain least squares (docs/map-errors.md)
+    map_sigma_m : [m] the DEM's height error (rms, correlated over MAP_CORRELATION_M) the reported
+        sigmas allow for: the position sigma adds what it does to the fit in quadrature
+        (:func:`skyfix.pose.map_error.position_map_sigma`) and the image-plane solve of a narrow
+        view (:mod:`skyfix.pose.image_plane`) widens its sigmas alike; 0: the DEM is the world.
+        The answer itself does not depend on it
     """
 
     match: MatchConfig = MatchConfig()
@@ -54,6 +59,7 @@ class PoseConfig:
     retry_segments: int = 4
     retry_per_segment: int = 2
     dem_sigma_m: float | None = None
+    map_sigma_m: float = MAP_DEM_SIGMA_M
 
 
 #: Most grid points a search without a database renders: each costs ~3 ms and ~30 kB, so this

@@ -18,6 +18,7 @@ import numpy as np
 from ..camera import Camera, az_el_to_direction, r_world_cam
 from .confidence import residual_correlation_bins
 from .lm import levenberg_marquardt
+from .map_error import MAP_CORRELATION_M, MAP_DEM_SIGMA_M, error_covariance, sandwich
 
 
 @dataclass(frozen=True)
@@ -58,12 +59,9 @@ RESTART_GAIN = 0.7
 IMAGE_PLANE_MAX_SPAN_DEG = 120.0
 #: confidence at most, when the image-plane yaw lies more than 1 deg from the profile fit's
 SOLVES_DISAGREE_CONFIDENCE = 0.5
-#: [m] the DEM's height error (rms) against the terrain the camera sees that the image-plane
-#: sigmas allow for, unless told otherwise (``skyfix heading --dem-sigma-m``): every real DEM
-#: is metres off (the simulator's map errors: 2 m, correlated over 150 m)
-IMAGE_PLANE_DEM_SIGMA_M = 2.0
-#: [m] correlation length (exponential) of that error on the ground
-MAP_CORRELATION_M = 150.0
+#: [m] the DEM's height error (rms) the image-plane sigmas allow for, unless told otherwise
+#: (``skyfix heading --dem-sigma-m``): :data:`skyfix.pose.map_error.MAP_DEM_SIGMA_M`
+IMAGE_PLANE_DEM_SIGMA_M = MAP_DEM_SIGMA_M
 #: azimuth bins of the horizon rendered for the image-plane solve (0.05 deg: ~1 px of a navcam)
 IMAGE_PLANE_RENDER_BINS = 7200
 
@@ -232,29 +230,17 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
 
 
 def _map_covariance(proj, th, jac, w, info_inv, dem_sigma_m):
-    """The covariance [deg^2] the map's height error gives a fitted (yaw, pitch, roll).
-
-    The DEM is taken to be off by ``dem_sigma_m`` [m] rms, correlated as ``exp(-r /
-    MAP_CORRELATION_M)`` over ground distance ``r``. A column whose skyline point lies ``d`` away
-    then moves by ``f (e_sky - e_cam) / d`` px (``f`` the focal length [px], ``e_sky`` and
-    ``e_cam`` the errors at the skyline point and under the camera: a camera the map puts too
-    low sees every ridge too high), and the weighted least-squares answer by
-    ``A^-1 J^T W S W J A^-1``, ``S`` those moves' covariance [px^2].
-    """
+    """The covariance [deg^2] the map's height error (``dem_sigma_m`` [m] rms, the model of
+    :mod:`skyfix.pose.map_error`) gives a fitted (yaw, pitch, roll): a column whose skyline point
+    lies ``d`` away moves by ``f (e_sky - e_cam) / d`` px (``f`` the focal length [px])."""
     pred, pts = proj.predict(*th, points=True)
     ok = np.isfinite(pred) & np.isfinite(pts).all(axis=1)
     if not ok.any():
         return np.zeros((th.size, th.size))
     p = pts[ok]
     d = np.hypot(p[:, 0], p[:, 1])
-    gap = np.hypot(p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1])
-    near = np.exp(-d / MAP_CORRELATION_M)
-    # cov(e_sky_i - e_cam, e_sky_j - e_cam) / sigma^2, exponential correlation
-    c = np.exp(-gap / MAP_CORRELATION_M) - near[:, None] - near[None, :] + 1.0
-    g = proj.focal_px()[ok] / np.maximum(d, 1.0)
-    s = (dem_sigma_m ** 2) * c * g[:, None] * g[None, :]
-    jw = (jac * w[:, None])[ok]
-    return info_inv @ (jw.T @ s @ jw) @ info_inv
+    s = error_covariance(p, proj.focal_px()[ok] / np.maximum(d, 1.0), dem_sigma_m)
+    return sandwich(jac[ok], w[ok], s, info_inv)
 
 
 def image_plane_attitude(frames, dem, x, y, yaw_deg, pitch_deg, roll_deg, *, camera_height_m,

@@ -1,0 +1,113 @@
+"""What the map's own height error does to a fit: the covariance it gives the answer.
+
+Every real DEM is metres off the terrain. Model: the error is ``sigma`` [m] rms, correlated as
+``exp(-r / MAP_CORRELATION_M)`` over ground distance ``r`` (the simulator's map errors are of this
+kind: :mod:`skyfix.simulate.world`). A skyline point ``d`` away whose terrain is off by ``e_sky``,
+seen from a camera whose ground is off by ``e_cam``, moves by ``g (e_sky - e_cam)`` in whatever the
+fit compares (``g = 1 / d`` rad in elevation, ``f / d`` px in an image row): a camera the map puts
+too low sees every ridge too high. A least-squares fit with Jacobian ``J`` and weights ``W`` then
+moves by ``A^-1 J^T W S W J A^-1`` (``A = J^T W J``, ``S`` the moves' covariance): the sandwich.
+
+Used by the image-plane attitude (:mod:`skyfix.pose.image_plane`) and by the position a
+:func:`~skyfix.pose.locate.locate` refinement reports (:func:`position_map_sigma`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: [m] the DEM's height error (rms) against the terrain the camera sees that sigmas allow for
+#: unless told otherwise: every real DEM is metres off (the simulator's map errors: 2 m,
+#: correlated over 150 m)
+MAP_DEM_SIGMA_M = 2.0
+#: [m] correlation length (exponential) of that error on the ground
+MAP_CORRELATION_M = 150.0
+#: [m] half the step of the central differences that give a profile's change with position:
+#: wide enough that a 20-30 m DEM's cell edges do not make it jump, small against the distances
+#: of the terrain that makes the skyline
+POSITION_STEP_M = 2.0
+
+
+def error_covariance(points_xy, gain, dem_sigma_m, corr_m=MAP_CORRELATION_M):
+    """Covariance of the moves the map's error gives each observation.
+
+    points_xy : (m, 2) [m] each observation's skyline point relative to the camera
+    gain : (m,) how far each observation moves per metre of ``e_sky - e_cam`` (its unit sets the
+        result's: [deg/m] gives deg^2, [px/m] px^2)
+    Returns ``sigma^2 corr(e_sky_i - e_cam, e_sky_j - e_cam) g_i g_j`` (m, m).
+    """
+    p = np.asarray(points_xy, float)
+    g = np.asarray(gain, float)
+    d = np.hypot(p[:, 0], p[:, 1])
+    gap = np.hypot(p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1])
+    near = np.exp(-d / corr_m)
+    c = np.exp(-gap / corr_m) - near[:, None] - near[None, :] + 1.0
+    return (dem_sigma_m ** 2) * c * g[:, None] * g[None, :]
+
+
+def sandwich(jac, weights, s, info_inv=None):
+    """``A^-1 J^T W S W J A^-1`` with ``A = J^T W J`` (or ``info_inv`` given as ``A^-1``)."""
+    jw = np.asarray(jac, float) * np.asarray(weights, float)[:, None]
+    if info_inv is None:
+        info_inv = np.linalg.inv(jw.T @ jac)
+    return info_inv @ (jw.T @ s @ jw) @ info_inv
+
+
+def position_map_sigma(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, *, noise_deg,
+                       dem_sigma_m=MAP_DEM_SIGMA_M, prior_pitch_deg=0.0, prior_roll_deg=0.0,
+                       step_m=POSITION_STEP_M):
+    """1-sigma [m] (square root of the trace of the 2 x 2 covariance) that the map's height error
+    gives a position fitted to the body-frame profile ``q`` [deg] at (x, y) [m].
+
+    world_at(xs, ys) -> (elevation (k, m) [deg], skyline distance (k, m) [m]): world-frame
+    horizons rendered on the map at those points; yaw, pitch, roll [deg]: the fitted attitude.
+    The fit is taken as the refinement's: position, yaw, pitch, roll and an offset, by least
+    squares over the bins within the clipped cost's bound (``max(3 noise, 0.5 deg)``,
+    :func:`skyfix.pose.scoring.robust_cost`); noise_deg [deg] the profile's noise. NaN where
+    fewer than 8 bins remain.
+    """
+    from .forward import BodyProfiler
+    from .scoring import body_distances
+
+    q = np.asarray(q, float)
+    n = q.size
+    h = float(step_m)
+    xs = np.array([x, x + h, x - h, x, x])
+    ys = np.array([y, y, y, y + h, y - h])
+    el, dist = world_at(xs, ys)
+    th = (float(yaw_deg), float(pitch_deg), float(roll_deg))
+    kw = dict(n_bins=n, prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+    body = [BodyProfiler(e, **kw)(*th) for e in el]
+    centre = BodyProfiler(el[0], **kw)
+    ha = 0.02  # [deg] the attitude fit's own difference step
+    cols = [(body[1] - body[2]) / (2 * h), (body[3] - body[4]) / (2 * h)]
+    for i in range(3):
+        e = np.zeros(3)
+        e[i] = ha
+        cols.append((centre(*(np.add(th, e))) - centre(*(np.subtract(th, e)))) / (2 * ha))
+    cols.append(np.ones(n))
+    jac = np.stack(cols, axis=1)  # d(prediction)/d(x, y, yaw, pitch, roll, offset): deg per unit
+    d = body_distances(dist[0], th[0], n)
+    r = q - body[0]
+    ok = np.isfinite(r) & np.isfinite(jac).all(axis=1) & np.isfinite(d) & (d > 0)
+    if ok.sum() < 8:
+        return math.nan
+    r = r - np.median(r[ok])
+    ok &= np.abs(r) < max(3.0 * noise_deg, 0.5)  # the clipped cost's inliers
+    if ok.sum() < 8:
+        return math.nan
+    az = np.radians(np.arange(n) * 360.0 / n + th[0])[ok]
+    pts = np.stack([d[ok] * np.sin(az), d[ok] * np.cos(az)], axis=1)
+    s = error_covariance(pts, np.degrees(1.0 / d[ok]), dem_sigma_m)
+    try:
+        cov = sandwich(jac[ok], np.ones(int(ok.sum())), s)
+    except np.linalg.LinAlgError:
+        return math.inf
+    tr = float(cov[0, 0] + cov[1, 1])
+    return math.sqrt(tr) if tr >= 0 and math.isfinite(tr) else math.inf
+
+
+__all__ = ["MAP_DEM_SIGMA_M", "MAP_CORRELATION_M", "POSITION_STEP_M", "error_covariance",
+           "sandwich", "position_map_sigma"]
