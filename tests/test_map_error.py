@@ -9,7 +9,8 @@ import pytest
 from skyfix.dem import Dem
 from skyfix.horizon import render_horizons
 from skyfix.pose.forward import BodyProfiler
-from skyfix.pose.map_error import MAP_CORRELATION_M, error_covariance, position_map_sigma
+from skyfix.pose.map_error import (MAP_CORRELATION_M, error_covariance, fit_map_covariance,
+                                   position_map_sigma)
 
 
 def test_error_covariance_closed_forms():
@@ -48,7 +49,7 @@ def test_position_map_sigma_matches_the_scatter_of_fits_on_maps_that_differ_from
     """Worlds drawn as the map plus a correlated height error (2 m rms over 150 m); from each the
     profile a level camera 1.5 m above that world's ground measures; the least-squares position
     (with yaw, pitch, roll and an offset) against the map, linearised with a Jacobian of its
-    own (1 m steps). The spread of those positions is what the map share must say."""
+    own (1 m steps). The spread of those positions and yaws is what the map shares must say."""
     z = _terrain()
     cell, x, y, yaw, n, bins, sigma = 10.0, 1000.0, 1000.0, 40.0, 360, 1440, 2.0
     dem = Dem.from_array(z, cell)
@@ -61,6 +62,8 @@ def test_position_map_sigma_matches_the_scatter_of_fits_on_maps_that_differ_from
     q0 = BodyProfiler(el0, n_bins=n)(yaw, 0.0, 0.0)
     claimed = position_map_sigma(q0, world_at, x, y, yaw, 0.0, 0.0, noise_deg=0.05,
                                  dem_sigma_m=sigma)
+    claimed_yaw = math.sqrt(fit_map_covariance(q0, world_at, x, y, yaw, 0.0, 0.0, noise_deg=0.05,
+                                               dem_sigma_m=sigma)[2, 2])
     h = 1.0
     els = world_at(np.array([x + h, x - h, x, x]), np.array([y, y, y + h, y - h]))[0]
     p = [BodyProfiler(e, n_bins=n)(yaw, 0.0, 0.0) for e in els]
@@ -72,7 +75,7 @@ def test_position_map_sigma_matches_the_scatter_of_fits_on_maps_that_differ_from
         cols.append((centre(*(np.array([yaw, 0.0, 0.0]) + e))
                      - centre(*(np.array([yaw, 0.0, 0.0]) - e))) / 0.02)
     jac = np.stack(cols + [np.ones(n)], axis=1)
-    gain = np.linalg.solve(jac.T @ jac, jac.T)[:2]
+    gain = np.linalg.solve(jac.T @ jac, jac.T)[:3]
     moves = []
     for err in _correlated_fields(z.shape, cell, sigma, 60, np.random.default_rng(3)):
         world = Dem.from_array(z + err, cell)
@@ -80,8 +83,11 @@ def test_position_map_sigma_matches_the_scatter_of_fits_on_maps_that_differ_from
         seen = render_horizons(world, [x], [y], azimuth_bins=bins,
                                camera_z_m=[ground + 1.5]).elevation_deg[0]
         moves.append(gain @ (BodyProfiler(seen, n_bins=n)(yaw, 0.0, 0.0) - q0))
-    spread = float(np.sqrt(np.mean(np.sum(np.square(moves), axis=1))))
+    moves = np.array(moves)
+    spread = float(np.sqrt(np.mean(np.sum(np.square(moves[:, :2]), axis=1))))
+    spread_yaw = float(np.sqrt(np.mean(np.square(moves[:, 2]))))
     # measured: claimed 7.6 m, spread 7.0 m; 60 draws know the rms to ~10 %, and the model's points are
     # the skyline's, not every bilinear cell the error moves
     assert 1.0 < spread < 50.0, "the map's error must move this fix by metres"
     assert claimed == pytest.approx(spread, rel=0.35)
+    assert claimed_yaw == pytest.approx(spread_yaw, rel=0.35)  # measured 0.33 and 0.30 deg

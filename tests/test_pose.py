@@ -304,9 +304,9 @@ def test_cli_locate_and_heading_from_a_profile(world, tmp_path):
 
 
 def test_the_position_sigma_allows_for_the_maps_height_error(world):
-    """By default (``map_sigma_m`` 2 m) the sigma holds what a 2 m map error does to the fix,
-    added in quadrature to the fit's own; 0 (the DEM is the world) leaves the fit's. The fix
-    itself does not change."""
+    """By default (``map_sigma_m`` 2 m) the position and heading sigmas hold what a 2 m map error
+    does to the fix, added in quadrature to the fit's own; 0 (the DEM is the world) leaves the
+    fit's. The fix itself does not change."""
     dem, st = world
     prof = synthetic_profile(dem, 733.3, 871.9, 123.4, noise_deg=0.05, rng=3)
     exact = locate(prof, db=st, dem=dem, config=CFG)
@@ -316,6 +316,9 @@ def test_the_position_sigma_allows_for_the_maps_height_error(world):
     assert "position_sigma_map_m" not in exact.features
     assert 1.0 < share < 50.0  # metres, on a 10 m DEM with hills 300-1000 m away
     assert real.position_sigma_m == pytest.approx(math.hypot(exact.position_sigma_m, share))
+    yaw = real.features["heading_sigma_map_deg"]
+    assert 0.01 < yaw < 2.0
+    assert real.heading_sigma_deg == pytest.approx(math.hypot(exact.heading_sigma_deg, yaw))
 
 
 def test_tilted_query_with_zero_prior_is_located(world):

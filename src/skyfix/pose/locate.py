@@ -43,7 +43,7 @@ from .config import PoseConfig
 from .fix import Fix, crs_and_lonlat
 from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
                           image_plane_attitude, view_span_deg)
-from .map_error import position_map_sigma
+from .map_error import fit_map_covariance
 from .refine import inside_dem, prior_grid, refine_candidates
 from .scoring import clipped_costs, profile_arrays, render_points, robust_scores
 
@@ -113,20 +113,20 @@ def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_de
                 feat=feat, conf=conf)
 
 
-def _with_map_share(psig, feat, dem, q, out, noise, config, camera_height_m, planet,
+def _with_map_share(psig, hsig, feat, dem, q, out, noise, config, camera_height_m, planet,
                     prior_pitch_deg, prior_roll_deg):
-    """The position sigma [m] widened by what the map's height error (``config.map_sigma_m``; 0:
-    the DEM is the world) does to the fit (:func:`~skyfix.pose.map_error.position_map_sigma`),
-    added in quadrature. The fitted sigma (the score
-    surface's curvature, calibrated) sees the residual, not a map that pulls the answer while
-    fitting well: on map-error cases it covered 4 of 20 errors within 1 sigma (Sierra). Both
-    parts go into ``feat`` (``position_sigma_fit_m``, ``position_sigma_map_m``)."""
+    """The position sigma [m] and heading sigma [deg] widened by what the map's height error
+    (``config.map_sigma_m``; 0: the DEM is the world) does to the fit
+    (:func:`~skyfix.pose.map_error.fit_map_covariance`), added in quadrature. The fitted sigmas
+    (the score surface's curvature and the attitude fit's, calibrated) see the residual, not a
+    map that pulls the answer while fitting well. Both parts go into ``feat``
+    (``position_sigma_fit_m``, ``position_sigma_map_m``, ``heading_sigma_map_deg``)."""
     from ..horizon import render_horizons
 
     dem_sigma = float(config.map_sigma_m)
     feat["position_sigma_fit_m"] = float(psig)
     if dem_sigma <= 0:
-        return psig
+        return psig, hsig
 
     def world_at(xs, ys):
         ok = inside_dem(dem, xs, ys, 0.0)
@@ -138,11 +138,18 @@ def _with_map_share(psig, feat, dem, q, out, noise, config, camera_height_m, pla
             el[ok], dist[ok] = hb.elevation_deg, hb.skyline_distance_m
         return el, dist
 
-    sd = position_map_sigma(q, world_at, out["x"], out["y"], out["heading"], out["pitch"],
-                            out["roll"], noise_deg=noise, dem_sigma_m=dem_sigma,
-                            prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
-    feat["position_sigma_map_m"] = float(sd)
-    return float(math.hypot(psig, sd)) if math.isfinite(sd) else psig
+    cov = fit_map_covariance(q, world_at, out["x"], out["y"], out["heading"], out["pitch"],
+                             out["roll"], noise_deg=noise, dem_sigma_m=dem_sigma,
+                             prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+    if cov is None:  # too few bins to say: the fitted sigmas stand
+        return psig, hsig
+    var = np.diag(cov)
+    if not (np.all(np.isfinite(var[:3])) and np.all(var[:3] >= 0)):  # a singular fit
+        return psig, hsig
+    sd_pos, sd_yaw = math.sqrt(var[0] + var[1]), math.sqrt(var[2])
+    feat["position_sigma_map_m"] = sd_pos
+    feat["heading_sigma_map_deg"] = sd_yaw
+    return float(math.hypot(psig, sd_pos)), float(math.hypot(hsig, sd_yaw))
 
 
 def _segment_candidates(db, q, config, known, *, prior_xy=None, prior_radius_m=None):
@@ -281,8 +288,8 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
                               prior_roll_deg, model, "locate")
         fx, fy, heading, pitch, roll = out["x"], out["y"], out["heading"], out["pitch"], out["roll"]
         best_s, psig, hsig, feat, conf = out["cost"], out["psig"], out["hsig"], out["feat"], out["conf"]
-        psig = _with_map_share(psig, feat, dem, q, out, noise, config, camera_height_m, planet,
-                               prior_pitch_deg, prior_roll_deg)
+        psig, hsig = _with_map_share(psig, hsig, feat, dem, q, out, noise, config,
+                                     camera_height_m, planet, prior_pitch_deg, prior_roll_deg)
         cand_out = [{"x": d["x"], "y": d["y"], "heading_deg": d["heading"],
                      "score": d["cost"]} for d in results]
         cand_out += [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]} for c in rest]

@@ -55,18 +55,18 @@ def sandwich(jac, weights, s, info_inv=None):
     return info_inv @ (jw.T @ s @ jw) @ info_inv
 
 
-def position_map_sigma(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, *, noise_deg,
+def fit_map_covariance(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, *, noise_deg,
                        dem_sigma_m=MAP_DEM_SIGMA_M, prior_pitch_deg=0.0, prior_roll_deg=0.0,
                        step_m=POSITION_STEP_M):
-    """1-sigma [m] (square root of the trace of the 2 x 2 covariance) that the map's height error
-    gives a position fitted to the body-frame profile ``q`` [deg] at (x, y) [m].
+    """The covariance that the map's height error gives a fit of the body-frame profile ``q``
+    [deg] at (x, y) [m]: (6, 6) over x, y [m], yaw, pitch, roll [deg] and the offset [deg]; None
+    where fewer than 8 bins remain.
 
     world_at(xs, ys) -> (elevation (k, m) [deg], skyline distance (k, m) [m]): world-frame
     horizons rendered on the map at those points; yaw, pitch, roll [deg]: the fitted attitude.
     The fit is taken as the refinement's: position, yaw, pitch, roll and an offset, by least
     squares over the bins within the clipped cost's bound (``max(3 noise, 0.5 deg)``,
-    :func:`skyfix.pose.scoring.robust_cost`); noise_deg [deg] the profile's noise. NaN where
-    fewer than 8 bins remain.
+    :func:`skyfix.pose.scoring.robust_cost`); noise_deg [deg] the profile's noise.
     """
     from .forward import BodyProfiler
     from .scoring import body_distances
@@ -93,21 +93,30 @@ def position_map_sigma(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, *, noise
     r = q - body[0]
     ok = np.isfinite(r) & np.isfinite(jac).all(axis=1) & np.isfinite(d) & (d > 0)
     if ok.sum() < 8:
-        return math.nan
+        return None
     r = r - np.median(r[ok])
     ok &= np.abs(r) < max(3.0 * noise_deg, 0.5)  # the clipped cost's inliers
     if ok.sum() < 8:
-        return math.nan
+        return None
     az = np.radians(np.arange(n) * 360.0 / n + th[0])[ok]
     pts = np.stack([d[ok] * np.sin(az), d[ok] * np.cos(az)], axis=1)
     s = error_covariance(pts, np.degrees(1.0 / d[ok]), dem_sigma_m)
     try:
-        cov = sandwich(jac[ok], np.ones(int(ok.sum())), s)
+        return sandwich(jac[ok], np.ones(int(ok.sum())), s)
     except np.linalg.LinAlgError:
-        return math.inf
+        return np.full((6, 6), np.inf)
+
+
+def position_map_sigma(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, **kw):
+    """1-sigma [m] (square root of the trace of the 2 x 2 covariance) that the map's height error
+    gives the position of :func:`fit_map_covariance` (same arguments); NaN where fewer than 8
+    bins remain, inf where the fit is singular."""
+    cov = fit_map_covariance(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, **kw)
+    if cov is None:
+        return math.nan
     tr = float(cov[0, 0] + cov[1, 1])
     return math.sqrt(tr) if tr >= 0 and math.isfinite(tr) else math.inf
 
 
 __all__ = ["MAP_DEM_SIGMA_M", "MAP_CORRELATION_M", "POSITION_STEP_M", "error_covariance",
-           "sandwich", "position_map_sigma"]
+           "fit_map_covariance", "sandwich", "position_map_sigma"]
