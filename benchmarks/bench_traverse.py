@@ -2,7 +2,9 @@
 leg's fix, odometry alone beside it, time per heading update and per leg-end fix.
 
     python benchmarks/bench_traverse.py --dem ../shared/data/dem/south_glacier_20m.tif --out /tmp/tg
-    (--length-m, --spacing-m, --seed; --stop-conditions K=COND as in simulate-traverse)
+    (--length-m, --spacing-m, --seed; --stop-conditions K=COND as in simulate-traverse;
+    --dem-sigma-m as in skyfix traverse: 0 says the map is the world, as it is here without
+    --map-errors)
 
 Simulates the traverse (skipped when OUT/traverse already holds one), runs ``skyfix traverse`` on
 it, and prints the figures against the truth. The images are rendered from the map DEM itself
@@ -34,6 +36,8 @@ def main(argv=None):
     ap.add_argument("--stop-conditions", action="append", default=[])
     ap.add_argument("--mode", default="frames")
     ap.add_argument("--map-errors", action="store_true")
+    ap.add_argument("--dem-sigma-m", type=float, default=None,
+                    help="skyfix traverse --dem-sigma-m (default: its own, 2 m)")
     ap.add_argument("--db", help="skyline database for the leg-end fixes (default: DEM only, in a "
                                  "disc around the prediction)")
     ap.add_argument("--world-dem")
@@ -52,7 +56,10 @@ def main(argv=None):
         subprocess.run(cmd, check=True)
     t0 = time.perf_counter()
     proc = subprocess.run(sky + ["traverse", str(trav), "--dem", args.dem, "-o", str(res)]
-                          + (["--db", args.db] if args.db else []), capture_output=True, text=True)
+                          + (["--db", args.db] if args.db else [])
+                          + ([] if args.dem_sigma_m is None else
+                             ["--dem-sigma-m", str(args.dem_sigma_m)]),
+                          capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         print(proc.stderr)

@@ -68,6 +68,9 @@ def test_a_malformed_traverse_is_refused_before_any_stop(simulated, tmp_path):
     assert not (tmp_path / "o" / "stops.jsonl").exists()
     r = run("simulate-traverse", dem, "-o", tmp_path / "s", "--stop-conditions", "x=clouds")
     assert r.exit_code == 2 and "STOP=CONDITIONS" in r.output
+    r = run("traverse", trav, "--dem", dem, "-o", tmp_path / "o2", "--dem-sigma-m", -1)
+    assert r.exit_code == 2 and "--dem-sigma-m" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "o2" / "stops.jsonl").exists()
 
 
 def test_evaluate_traverse_reports_fused_against_odometry(tmp_path):

@@ -27,9 +27,13 @@ log = logging.getLogger("skyfix.stage")  # one line per stop at the default verb
               help="Updates below it are retried once, then not used.")
 @click.option("--max-rejections", type=int, default=3, show_default=True,
               help="Stops in a row without an accepted update before the operator is asked.")
+@click.option("--dem-sigma-m", type=float, default=None,
+              help="The DEM's height error (rms) [m] against the terrain, which the position "
+                   "fixes' sigmas allow for (so the track leans on them as far as such a map "
+                   "allows); 0: the DEM is the world [default: 2].")
 @click.option("--no-plot", is_flag=True, help="Do not draw track.png.")
 def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence, max_rejections,
-             no_plot):
+             dem_sigma_m, no_plot):
     """Fuse a traverse's odometry with skyline headings and position fixes.
 
     Rerun with the same -o to resume at the first stop not yet written.
@@ -53,6 +57,11 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
         require("matplotlib", "the track figure (track.png)", "--no-plot")
     if leg_length_m is not None and not (math.isfinite(leg_length_m) and leg_length_m > 0):
         raise ParameterError(f"--leg-length-m must be a number of metres > 0, got {leg_length_m}")
+    if dem_sigma_m is None:
+        from ..pose.map_error import MAP_DEM_SIGMA_M as dem_sigma_m
+    if not (math.isfinite(dem_sigma_m) and dem_sigma_m >= 0):
+        raise ParameterError(f"--dem-sigma-m must be a finite number of metres >= 0 (0: the DEM is "
+                             f"taken as the world), got {dem_sigma_m}")
     out = check_folder_output(out)
     with stage("inputs checked") as st:
         trav = read_traverse(traverse_dir)
@@ -81,7 +90,10 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
                  d["update"] if d["update"] != d["attempted"] or d["update"] == "rejected"
                  else f"{d['update']} update", conf, d["position_sigma_m"], d["heading_sigma_deg"], req)
 
-    rows = run_traverse(trav, acquisition_measure(trav, dem, db=db), out, config=cfg,
+    from ..pose import PoseConfig
+
+    measure = acquisition_measure(trav, dem, db=db, pose_config=PoseConfig(map_sigma_m=dem_sigma_m))
+    rows = run_traverse(trav, measure, out, config=cfg,
                         convergence=convergence, on_stop=progress)
     write_track(Path(out), rows, dem.crs_wkt)
     if not no_plot:

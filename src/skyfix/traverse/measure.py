@@ -16,7 +16,8 @@ MIN_BINS = 8
 def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) -> Measure:
     """A :class:`Measure` that reads stop k's acquisition folder, detects its skyline and runs
     :func:`skyfix.pose.estimate_heading` or :func:`skyfix.pose.locate` (with ``db`` when given,
-    else on ``dem`` in the prior disc)."""
+    else on ``dem`` in the prior disc). ``pose_config``: the fixes' settings, its ``map_sigma_m``
+    the DEM error the headings' sigmas allow for too."""
     from ..formats import load_acquisition
     from ..pose import PoseConfig, estimate_heading, locate
     from ..pose.heading import HEADING_POSITION_SIGMA_M
@@ -44,7 +45,8 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
         ps = HEADING_POSITION_SIGMA_M if position_sigma_m is None else float(position_sigma_m)
         hf = estimate_heading(prof, dem, x, y, prior_deg, window_deg,
                               camera_height_m=acq.camera_height_m, prior_pitch_deg=acq.prior_pitch_deg,
-                              prior_roll_deg=acq.prior_roll_deg, position_sigma_m=ps)
+                              prior_roll_deg=acq.prior_roll_deg, position_sigma_m=ps,
+                              dem_sigma_m=cfg.map_sigma_m)
         return Measurement(hf.grid_heading_deg, hf.heading_sigma_deg, hf.confidence)
 
     def fix(k, x, y, radius_m):
