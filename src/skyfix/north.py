@@ -13,6 +13,14 @@ from __future__ import annotations
 import math
 from functools import lru_cache
 
+import numpy as np
+
+
+def wrap_deg(a):
+    """An angle or a difference of angles [deg] into [-180, 180), the short way round (scalars
+    or arrays): ``wrap_deg(h1 - h2)`` is how far heading h1 lies clockwise of h2."""
+    return (np.asarray(a, float) + 180.0) % 360.0 - 180.0
+
 
 @lru_cache(maxsize=16)
 def _transformers(crs_wkt: str):

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ._io import atomic_path
+from .north import wrap_deg
 from .optional import pyplot
 
 #: what "correct" means per scenario: position error [m] and heading error [deg] at most
@@ -80,7 +81,7 @@ class CaseResult:
 
     @property
     def heading_error_deg(self) -> float:
-        return abs((self.fix_heading_deg - self.truth_yaw_deg + 180.0) % 360.0 - 180.0)
+        return float(abs(wrap_deg(self.fix_heading_deg - self.truth_yaw_deg)))
 
     @property
     def correct(self) -> bool:

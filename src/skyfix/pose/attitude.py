@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..north import wrap_deg
 from .forward import BodyProfiler
 from .lm import levenberg_marquardt, median
 
@@ -77,7 +78,7 @@ def fit_attitude(query_deg, world_el_deg, yaw0_deg, pitch0_deg=0.0, roll0_deg=0.
         # restart and a step returned the truth 20 deg from a +-10 deg prior.
         if yaw_window_deg is None:
             return yaw
-        d = (yaw - center + 180.0) % 360.0 - 180.0
+        d = wrap_deg(yaw - center)
         return center + float(np.clip(d, -yaw_window_deg, yaw_window_deg))
 
     def normal(th, r, w):

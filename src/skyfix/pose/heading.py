@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..match import prepare_query, score_profiles, tilt_determinable
-from ..north import meridian_convergence_deg, true_heading_deg
+from ..north import meridian_convergence_deg, true_heading_deg, wrap_deg
 from .attitude import fit_attitude
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
                          load_confidence_model, residual_correlation_bins, structureless_cap)
@@ -34,7 +34,7 @@ POSITION_WEIGHT_NOISE_DEG = 0.1
 
 def at_window_edge(heading_deg, prior_deg, window_deg, tol_deg=1e-6) -> bool:
     """Whether ``heading_deg`` [deg] sits on the edge of ``prior_deg +/- window_deg`` [deg]."""
-    d = abs((heading_deg - prior_deg + 180.0) % 360.0 - 180.0)
+    d = abs(wrap_deg(heading_deg - prior_deg))
     return d >= window_deg - tol_deg
 
 
@@ -126,7 +126,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     query = prepare_query(q, tilt, min_observed=4 if in_image else 8)
     s = score_profiles(world_n[None].astype(np.float32), query, all_shifts=True)[0]
     shifts = np.arange(n) * 360.0 / n
-    dist = np.abs((shifts - heading_prior_deg + 180.0) % 360.0 - 180.0)
+    dist = np.abs(wrap_deg(shifts - heading_prior_deg))
     # A window narrower than half a bin holds no bin centre: take the nearest one as the start.
     inwin = dist <= max(window_deg, float(dist.min()))
     k = int(np.flatnonzero(inwin)[np.argmin(s[inwin])])
@@ -138,7 +138,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                        restarts_deg=(-2.5, 0.0, 2.5),
                        accept_deg=2.0 * max(noise, 0.05), world_weights=trust)
     # Landscape inside the window: best vs best shift more than 3 deg away.
-    far = inwin & (np.abs((shifts - att.yaw_deg + 180.0) % 360.0 - 180.0) > 3.0)
+    far = inwin & (np.abs(wrap_deg(shifts - att.yaw_deg)) > 3.0)
     other = float(s[far].min()) if far.any() else np.inf
     relief = float(np.nanstd(q))
     feat = confidence_features(float(s[inwin].min()), other, att.robust_rms_deg, noise,
@@ -159,7 +159,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                                    window_deg=window_deg, dem_sigma_m=dem_sigma_m)
     yaw, pitch, roll = (img.yaw_deg, img.pitch_deg, img.roll_deg) if img is not None else \
         (att.yaw_deg, att.pitch_deg, att.roll_deg)
-    if img is not None and abs((img.yaw_deg - att.yaw_deg + 180.0) % 360.0 - 180.0) > 1.0:
+    if img is not None and abs(wrap_deg(img.yaw_deg - att.yaw_deg)) > 1.0:
         # the two solves found different basins: the confidence is the profile fit's, about
         # another answer
         conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera, az_el_to_direction, r_world_cam
+from ..north import wrap_deg
 from .confidence import residual_correlation_bins
 from .lm import levenberg_marquardt
 from .map_error import MAP_CORRELATION_M, MAP_DEM_SIGMA_M, error_covariance, sandwich
@@ -160,7 +161,7 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
     def clamp(th):
         th = th.copy()
         if yaw_window_deg is not None:
-            d = (th[0] - center + 180.0) % 360.0 - 180.0
+            d = wrap_deg(th[0] - center)
             th[0] = center + float(np.clip(d, -yaw_window_deg, yaw_window_deg))
         th[1:] = np.clip(th[1:], -30.0, 30.0)
         return th

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import ParameterError, SkyfixError
 from ..match import match_database, prepare_query, tilt_determinable
-from ..north import meridian_convergence_deg, true_heading_deg
+from ..north import meridian_convergence_deg, true_heading_deg, wrap_deg
 from ..progress import stage
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
                          load_confidence_model, position_sigma, residual_correlation_bins,
@@ -311,7 +311,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
                                    camera_height_m=camera_height_m, planet=planet,
                                    dem_sigma_m=config.map_sigma_m)
         if img is not None:
-            if abs((img.yaw_deg - heading + 180.0) % 360.0 - 180.0) > 1.0:
+            if abs(wrap_deg(img.yaw_deg - heading)) > 1.0:
                 conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)
                 notes.append(f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
                              "heading lies more than 1 deg from the profile fit's")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..north import wrap_deg
 from .forward import body_profile
 
 
@@ -38,7 +39,7 @@ def synthetic_profile(dem, x, y, heading_deg, pitch_deg=0.0, roll_deg=0.0, *, ca
     if coverage_deg < 360.0:
         c = rng.uniform(0, 360)
         az = np.arange(n_bins) * 360.0 / n_bins
-        d = np.abs((az - c + 180.0) % 360.0 - 180.0)
+        d = np.abs(wrap_deg(az - c))
         q[d > coverage_deg / 2] = np.nan
     sig = np.where(np.isfinite(q), max(noise_deg, 0.05), np.nan)
     return Profile(q, sig, "body", {"camera_height_m": camera_height_m})

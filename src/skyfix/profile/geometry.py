@@ -8,6 +8,7 @@ import numpy as np
 
 from ..camera import C_CAM_TO_BODY, Camera, direction_to_az_el, r_body_mast, r_world_body
 from ..errors import ParameterError
+from ..north import wrap_deg
 
 
 def levelling_rotation(pitch_deg: float, roll_deg: float) -> np.ndarray:
@@ -56,7 +57,7 @@ def sample_polyline(az: np.ndarray, el: np.ndarray, bins: int, *, weight: np.nda
     a0, a1 = az[:-1], az[1:]
     e0, e1 = el[:-1], el[1:]
     seg = np.isfinite(a0) & np.isfinite(a1) & np.isfinite(e0) & np.isfinite(e1)
-    da = (a1 - a0 + 180.0) % 360.0 - 180.0  # shortest way round: a segment never spans 180 deg
+    da = wrap_deg(a1 - a0)  # shortest way round: a segment never spans 180 deg
     seg &= np.abs(da) <= max_step_deg
     idx = np.flatnonzero(seg)
     if idx.size == 0:

@@ -17,16 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..north import wrap_deg
+
 #: chi-square quantiles at 99.9 %, by degrees of freedom: the innovation gate
 GATE_CHI2 = {1: 10.83, 3: 16.27}
 #: ... and at 95 %: the region where the track corroborates a measurement of middling confidence
 CORROBORATION_CHI2 = {1: 3.84, 3: 7.81}
 RAD = math.pi / 180.0
-
-
-def wrap_deg(a):
-    """Angle [deg] into [-180, 180)."""
-    return (np.asarray(a, float) + 180.0) % 360.0 - 180.0
 
 
 @dataclass(frozen=True)

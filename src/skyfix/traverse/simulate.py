@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError
+from ..north import wrap_deg
 from .inputs import ODOMETRY_FILE, TRAVERSE_FILE, TRUTH_FILE
 
 
@@ -59,7 +60,7 @@ def plan_path(dem, length_m: float, spacing_m: float, seed: int, *, margin_m: fl
                 break
             # steer towards the centre: the turn that heads there, plus a little noise
             to_c = math.degrees(math.atan2(centre[0] - p[0], centre[1] - p[1]))
-            turn = ((to_c - h + 180.0) % 360.0 - 180.0) * 0.5 + rng.normal(0.0, turn_sigma_deg)
+            turn = wrap_deg(to_c - h) * 0.5 + rng.normal(0.0, turn_sigma_deg)
         dh = turn
         steps.append((spacing_m * math.cos(math.radians(dh)), -spacing_m * math.sin(math.radians(dh)), dh))
         h = (h + dh) % 360.0
