@@ -7,7 +7,8 @@ import math
 import pytest
 
 from skyfix.report import (CaseResult, heading_vs_prior_rows, read_results_csv, reliability_rows,
-                           summary_rows, write_report_html, write_results_csv)
+                           sigma_coverage_rows, summary_rows, write_report_html,
+                           write_results_csv)
 
 
 def _case(set_, dx, dyaw, conf, scenario=1, status="ok", offset=0.0):
@@ -47,6 +48,29 @@ def test_tables_count_what_they_say(tmp_path):
     from skyfix import __version__
 
     assert "skyfix evaluate" in page.read_text() and f"skyfix {__version__}" in page.read_text()
+
+
+def test_sigma_coverage_counts_errors_within_one_and_two_sigmas():
+    """Errors 1, 3 and 20 m against 2 m sigmas: 1 of 3 within 1 sigma, 2 of 3 within 2; the
+    misregistration is taken off first; a failed case and a missing sigma do not count."""
+    from dataclasses import replace
+
+    rs = [replace(_case("DEMERR", dx, dyaw, 0.5), position_sigma_m=2.0, heading_sigma_deg=0.1)
+          for dx, dyaw in ((1.0, 0.05), (3.0, 0.15), (20.0, 0.5))]
+    rs.append(replace(_case("DEMERR", 6.0, 0.0, 0.5), position_sigma_m=2.0, heading_sigma_deg=0.1,
+                      map_offset_x_m=5.0))  # 6 m from the truth, 1 m from where the map puts it
+    rs.append(replace(_case("DEMERR", 0.0, 0.0, 0.5, status="no skyline"), position_sigma_m=2.0))
+    rs.append(_case("REF", 0.0, 0.0, 0.9))  # no sigmas reported
+    rows = {r["set"]: r for r in sigma_coverage_rows(rs)}
+    d = rows["DEMERR"]
+    assert d["pos_cases"] == 4 and d["head_cases"] == 4
+    assert d["pos_within_1_sigma_pct"] == 50.0 and d["pos_within_2_sigma_pct"] == 75.0
+    assert d["head_within_1_sigma_pct"] == 50.0 and d["head_within_2_sigma_pct"] == 75.0
+    assert rows["REF"]["pos_cases"] == 0 and math.isnan(rows["REF"]["pos_within_1_sigma_pct"])
+    assert rows["all"]["pos_cases"] == 4
+    from skyfix.report import header_label
+
+    assert header_label("pos_within_1_sigma_pct") == "position within 1 sigma [%]"
 
 
 def test_report_headers_and_cases_read_as_words():

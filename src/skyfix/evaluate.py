@@ -261,14 +261,15 @@ def calibration_row(res: CaseResult, features: dict, dem) -> dict:
 
 def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command: str) -> Path:
     from .report import (case_rows, format_table, heading_vs_prior_rows, plot_error_cdfs,
-                         plot_reliability, reliability_rows, summary_rows, timing_rows,
-                         write_report_html, write_results_csv)
+                         plot_reliability, reliability_rows, sigma_coverage_rows, summary_rows,
+                         timing_rows, write_report_html, write_results_csv)
 
     write_results_csv(results, out / "results.csv")
     tables = [("Results per set", summary_rows(results))]
     if cfg.scenario == 3:
         tables.append(("Heading error vs prior position error", heading_vs_prior_rows(results)))
     tables.append(("Confidence reliability", reliability_rows(results)))
+    tables.append(("How often the 1-sigmas cover the errors", sigma_coverage_rows(results)))
     tables.append(("Time and memory per stage (rover CPU ~30x slower)", timing_rows(results, cfg.scenario)))
     text = "\n\n".join(f"{h}\n{format_table(rows)}" for h, rows in tables)
     _write_text(out / "tables.txt", text + "\n")
