@@ -1,0 +1,96 @@
+"""The sigmas' map share against a Monte Carlo on a real DEM: does a map that is ``sigma`` off
+move a least-squares fit as much as :func:`skyfix.pose.map_error.fit_map_covariance` says?
+
+    python scripts/check_map_sigma.py --dem ../shared/data/dem/sierra_nevada_30m.tif \\
+        --x -2015996.7 --y 240154.7 --yaw 309.0 [--draws 30] [--dem-sigma-m 2]
+
+Each draw adds a height error with the model's covariance (``sigma^2 exp(-r / 150 m)``, white
+noise filtered by that covariance's 2-D spectrum, on a grid padded against the periodic wrap)
+to the DEM, renders the profile a level camera 1.5 m above that world's ground sees at (x, y)
+with grid heading ``--yaw``, and solves the least-squares position, yaw, pitch, roll and offset
+against the map, linearised with a Jacobian of its own (1 m and 0.01 deg steps). Prints the
+claimed position (radial) and yaw sigmas beside the spread of those solutions. 2026-11-26, the
+three board cases of ``benchmarks/bench_board.py`` (30 draws each): claimed 9.8 / 9.7 / 21 m,
+spread 6.9 / 5.6 / 12 m; yaw 0.40 / 0.25 / 0.61 against 0.36 / 0.17 / 0.54 deg.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+
+from skyfix.dem import Dem, load_dem
+from skyfix.horizon import render_horizons
+from skyfix.pose.forward import BodyProfiler
+from skyfix.pose.map_error import MAP_CORRELATION_M, fit_map_covariance
+
+BINS, N_BODY, CAMERA_M = 1440, 360, 1.5
+
+
+def error_fields(shape, dx, dy, sigma_m, count, rng):
+    """``count`` height-error grids [m] with covariance ``sigma^2 exp(-r / MAP_CORRELATION_M)``."""
+    n = 1 << int(math.ceil(math.log2(2 * max(shape))))
+    fy = np.fft.fftfreq(n, dy)[:, None]
+    fx = np.fft.fftfreq(n, dx)[None, :]
+    h = (1.0 + (2 * np.pi * np.hypot(fx, fy) * MAP_CORRELATION_M) ** 2) ** -0.75
+    h *= sigma_m / np.sqrt(np.mean(h ** 2))
+    for _ in range(count):
+        yield np.fft.ifft2(np.fft.fft2(rng.standard_normal((n, n))) * h).real[:shape[0], :shape[1]]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dem", required=True)
+    ap.add_argument("--x", type=float, required=True, help="[m] in the DEM's CRS")
+    ap.add_argument("--y", type=float, required=True, help="[m]")
+    ap.add_argument("--yaw", type=float, default=0.0, help="[deg] from grid north")
+    ap.add_argument("--draws", type=int, default=30)
+    ap.add_argument("--dem-sigma-m", type=float, default=2.0)
+    ap.add_argument("--seed", type=int, default=1)
+    a = ap.parse_args(argv)
+    dem = load_dem(a.dem)
+    x, y, yaw = a.x, a.y, a.yaw
+
+    def world_at(xs, ys, d=dem):
+        hb = render_horizons(d, xs, ys, camera_height_m=CAMERA_M, azimuth_bins=BINS)
+        return hb.elevation_deg, hb.skyline_distance_m
+
+    level = np.array([yaw, 0.0, 0.0])
+    el0 = world_at(np.array([x]), np.array([y]))[0][0]
+    centre = BodyProfiler(el0, n_bins=N_BODY)
+    q0 = centre(*level)
+    cov = fit_map_covariance(q0, world_at, x, y, yaw, 0.0, 0.0, noise_deg=0.1,
+                             dem_sigma_m=a.dem_sigma_m)
+    if cov is None:
+        raise SystemExit("too few skyline bins at that position")
+    h = 1.0
+    els = world_at(np.array([x + h, x - h, x, x]), np.array([y, y, y + h, y - h]))[0]
+    p = [BodyProfiler(e, n_bins=N_BODY)(*level) for e in els]
+    cols = [(p[0] - p[1]) / (2 * h), (p[2] - p[3]) / (2 * h)]
+    for i in range(3):
+        e = np.zeros(3)
+        e[i] = 0.01
+        cols.append((centre(*(level + e)) - centre(*(level - e))) / 0.02)
+    jac = np.stack(cols + [np.ones(N_BODY)], axis=1)
+    ok = np.isfinite(jac).all(axis=1) & np.isfinite(q0)
+    gain = np.linalg.solve(jac[ok].T @ jac[ok], jac[ok].T)[:3]
+    moves = []
+    for err in error_fields(dem.z.shape, dem.dx, dem.dy, a.dem_sigma_m, a.draws,
+                            np.random.default_rng(a.seed)):
+        world = Dem(dem.z + err.astype(np.float32), dem.x0, dem.y0, dem.dx, dem.dy, dem.crs_wkt,
+                    dem.crs_name, body=getattr(dem, "body", None))
+        ground = float(render_horizons(world, [x], [y], azimuth_bins=4).ground_z_m[0])
+        seen = render_horizons(world, [x], [y], azimuth_bins=BINS,
+                               camera_z_m=[ground + CAMERA_M]).elevation_deg[0]
+        moves.append(gain @ (BodyProfiler(seen, n_bins=N_BODY)(*level) - q0)[ok])
+    moves = np.array(moves)
+    print(f"position (radial): claimed {math.sqrt(cov[0, 0] + cov[1, 1]):.2f} m, spread "
+          f"{math.sqrt(np.mean(np.sum(moves[:, :2] ** 2, axis=1))):.2f} m over {a.draws} draws")
+    print(f"yaw: claimed {math.sqrt(cov[2, 2]):.3f} deg, spread "
+          f"{math.sqrt(np.mean(moves[:, 2] ** 2)):.3f} deg")
+
+
+if __name__ == "__main__":
+    main()
