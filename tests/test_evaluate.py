@@ -76,3 +76,11 @@ def test_evaluate_detect_refuses_a_truth_of_another_size_and_counts_orphans(tmp_
     (tmp_path / "out").mkdir()
     r = run("evaluate-detect", "--images", tmp_path, "-o", tmp_path / "out")
     assert r.exit_code == 2 and ("folder" in r.output or "directory" in r.output)
+
+
+def test_a_negative_dem_sigma_is_refused_before_any_case(tmp_dem_file, tmp_path):
+    dem = tmp_dem_file(plane_dem(2_000, 20))
+    r = run("evaluate", "--dem", dem, "--scenario", 2, "--cases", 1, "--dem-sigma-m", -1,
+            "--out", tmp_path / "e")
+    assert r.exit_code == 2 and "--dem-sigma-m" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "e").exists()

@@ -8,7 +8,7 @@ import sys
 import click
 
 from ..detect.options import DEFAULT_METHOD, METHODS
-from .options import overwrite_option, traverse_path_options
+from .options import dem_sigma, overwrite_option, traverse_path_options
 
 
 @click.command()
@@ -51,6 +51,8 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
     from ..optional import require
 
     require("matplotlib", "skyfix evaluate (its figures and report)")
+    if dem_sigma_m is not None:  # None keeps the localiser's defaults (an unweighted search)
+        dem_sigma(dem_sigma_m)
     args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
     if scenario == "traverse":
         from ..simulate import check_seed

@@ -12,7 +12,7 @@ import click
 
 from ..errors import ParameterError
 from ..progress import stage
-from .options import camera_height, check_point_options, point_xy
+from .options import camera_height, check_point_options, dem_sigma, point_xy
 
 
 def _check_source(acq_dir, profile_path):
@@ -237,11 +237,7 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
         raise ParameterError("a prior position needs --prior-radius-m")
     if score_map is not None and db_path is None:
         raise ParameterError("--score-map needs --db (the map is the database's score)")
-    if dem_sigma_m is None:
-        from ..pose.map_error import MAP_DEM_SIGMA_M as dem_sigma_m
-    if not (math.isfinite(dem_sigma_m) and dem_sigma_m >= 0):
-        raise ParameterError(f"--dem-sigma-m must be a finite number of metres >= 0 (0: the DEM is "
-                             f"taken as the world), got {dem_sigma_m}")
+    dem_sigma_m = dem_sigma(dem_sigma_m)
     check_outputs(overwrite, ("--output", out, None), ("--geojson", geojson, None),
                   ("--score-map", score_map, GEOTIFF_SUFFIXES), ("--plot", plot, PLOT_FORMATS))
     # The database and the DEM are opened and checked against each other, and the acquisition's
@@ -355,11 +351,7 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     if not (math.isfinite(position_sigma_m) and position_sigma_m >= 0):
         raise ParameterError(f"--position-sigma-m must be a finite number of metres >= 0, got "
                              f"{position_sigma_m}")
-    if dem_sigma_m is None:
-        from ..pose.map_error import MAP_DEM_SIGMA_M as dem_sigma_m
-    if not (math.isfinite(dem_sigma_m) and dem_sigma_m >= 0):
-        raise ParameterError(f"--dem-sigma-m must be a finite number of metres >= 0 (0: the DEM is "
-                             f"taken as the world), got {dem_sigma_m}")
+    dem_sigma_m = dem_sigma(dem_sigma_m)
     check_outputs(overwrite, ("--output", out, None))
     frames = []  # the frames' detected rows: a narrow view is also solved in the image plane
     prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames)

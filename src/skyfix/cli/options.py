@@ -34,6 +34,21 @@ def camera_height(ctx, param, value):
     return value
 
 
+def dem_sigma(value):
+    """``--dem-sigma-m`` checked before any work [m]: finite and >= 0 (0: the DEM is the world);
+    None gives the sigmas' usual allowance, :data:`skyfix.pose.map_error.MAP_DEM_SIGMA_M`."""
+    import math
+
+    if value is None:
+        from ..pose.map_error import MAP_DEM_SIGMA_M
+
+        return MAP_DEM_SIGMA_M
+    if not (math.isfinite(value) and value >= 0):
+        raise ParameterError(f"--dem-sigma-m must be a finite number of metres >= 0 (0: the DEM is "
+                             f"taken as the world), got {value}")
+    return value
+
+
 camera_height_option = click.option(
     "--camera-height-m", type=float, default=1.5, show_default=True, callback=camera_height,
     help="Camera centre above the ground [m].")

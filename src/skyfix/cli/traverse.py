@@ -8,7 +8,7 @@ import logging
 import click
 
 from ..errors import ParameterError
-from .options import traverse_path_options
+from .options import dem_sigma, traverse_path_options
 
 log = logging.getLogger("skyfix.stage")  # one line per stop at the default verbosity
 
@@ -57,11 +57,7 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
         require("matplotlib", "the track figure (track.png)", "--no-plot")
     if leg_length_m is not None and not (math.isfinite(leg_length_m) and leg_length_m > 0):
         raise ParameterError(f"--leg-length-m must be a number of metres > 0, got {leg_length_m}")
-    if dem_sigma_m is None:
-        from ..pose.map_error import MAP_DEM_SIGMA_M as dem_sigma_m
-    if not (math.isfinite(dem_sigma_m) and dem_sigma_m >= 0):
-        raise ParameterError(f"--dem-sigma-m must be a finite number of metres >= 0 (0: the DEM is "
-                             f"taken as the world), got {dem_sigma_m}")
+    dem_sigma_m = dem_sigma(dem_sigma_m)
     out = check_folder_output(out)
     with stage("inputs checked") as st:
         trav = read_traverse(traverse_dir)
