@@ -40,10 +40,10 @@ class PoseConfig:
         (:func:`skyfix.pose.scoring.robust_cost`). Off by default: on map-error cases the
         weighting pulled fixes farther than plain least squares (docs/map-errors.md)
     map_sigma_m : [m] the DEM's height error (rms, correlated over MAP_CORRELATION_M) the reported
-        sigmas allow for: the position sigma adds what it does to the fit in quadrature
-        (:func:`skyfix.pose.map_error.position_map_sigma`) and the image-plane solve of a narrow
-        view (:mod:`skyfix.pose.image_plane`) widens its sigmas alike; 0: the DEM is the world.
-        The answer itself does not depend on it
+        sigmas allow for: the position and heading sigmas add what it does to the fit in
+        quadrature (:func:`skyfix.pose.map_error.fit_map_covariance`), and the image-plane solve
+        of a narrow view (:mod:`skyfix.pose.image_plane`) widens its sigmas alike; 0: the DEM is
+        the world. The answer itself does not depend on it
     """
 
     match: MatchConfig = MatchConfig()

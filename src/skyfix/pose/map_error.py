@@ -9,7 +9,7 @@ too low sees every ridge too high. A least-squares fit with Jacobian ``J`` and w
 moves by ``A^-1 J^T W S W J A^-1`` (``A = J^T W J``, ``S`` the moves' covariance): the sandwich.
 
 Used by the image-plane attitude (:mod:`skyfix.pose.image_plane`) and by the position a
-:func:`~skyfix.pose.locate.locate` refinement reports (:func:`position_map_sigma`).
+:func:`~skyfix.pose.locate.locate` refinement reports (:func:`fit_map_covariance`).
 """
 
 from __future__ import annotations
@@ -65,11 +65,11 @@ def fit_map_covariance(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, *, noise
     world_at(xs, ys) -> (elevation (k, m) [deg], skyline distance (k, m) [m]): world-frame
     horizons rendered on the map at those points; yaw, pitch, roll [deg]: the fitted attitude.
     The fit is taken as the refinement's: position, yaw, pitch, roll and an offset, by least
-    squares over the bins within the clipped cost's bound (``max(3 noise, 0.5 deg)``,
-    :func:`skyfix.pose.scoring.robust_cost`); noise_deg [deg] the profile's noise.
+    squares over the bins within the clipped cost's bound
+    (:func:`skyfix.pose.scoring.clip_bound_deg`); noise_deg [deg] the profile's noise.
     """
     from .forward import BodyProfiler
-    from .scoring import body_distances
+    from .scoring import body_distances, clip_bound_deg
 
     q = np.asarray(q, float)
     n = q.size
@@ -79,8 +79,9 @@ def fit_map_covariance(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, *, noise
     el, dist = world_at(xs, ys)
     th = (float(yaw_deg), float(pitch_deg), float(roll_deg))
     kw = dict(n_bins=n, prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
-    body = [BodyProfiler(e, **kw)(*th) for e in el]
-    centre = BodyProfiler(el[0], **kw)
+    profilers = [BodyProfiler(e, **kw) for e in el]
+    centre = profilers[0]
+    body = [p(*th) for p in profilers]
     ha = 0.02  # [deg] the attitude fit's own difference step
     cols = [(body[1] - body[2]) / (2 * h), (body[3] - body[4]) / (2 * h)]
     for i in range(3):
@@ -95,7 +96,7 @@ def fit_map_covariance(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, *, noise
     if ok.sum() < 8:
         return None
     r = r - np.median(r[ok])
-    ok &= np.abs(r) < max(3.0 * noise_deg, 0.5)  # the clipped cost's inliers
+    ok &= np.abs(r) < clip_bound_deg(noise_deg)  # the clipped cost's inliers
     if ok.sum() < 8:
         return None
     az = np.radians(np.arange(n) * 360.0 / n + th[0])[ok]
@@ -107,16 +108,5 @@ def fit_map_covariance(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, *, noise
         return np.full((6, 6), np.inf)
 
 
-def position_map_sigma(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, **kw):
-    """1-sigma [m] (square root of the trace of the 2 x 2 covariance) that the map's height error
-    gives the position of :func:`fit_map_covariance` (same arguments); NaN where fewer than 8
-    bins remain, inf where the fit is singular."""
-    cov = fit_map_covariance(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, **kw)
-    if cov is None:
-        return math.nan
-    tr = float(cov[0, 0] + cov[1, 1])
-    return math.sqrt(tr) if tr >= 0 and math.isfinite(tr) else math.inf
-
-
 __all__ = ["MAP_DEM_SIGMA_M", "MAP_CORRELATION_M", "POSITION_STEP_M", "error_covariance",
-           "fit_map_covariance", "sandwich", "position_map_sigma"]
+           "fit_map_covariance", "sandwich"]

@@ -163,6 +163,12 @@ def score_points(dem, xs, ys, q, *, camera_height_m, planet, n_bins, remove_tilt
     return sc, sh
 
 
+def clip_bound_deg(noise_deg):
+    """[deg] the residual beyond which :func:`robust_cost` counts a bin no further (and a fit
+    takes it for an outlier): three times the noise [deg], at least 0.5 deg."""
+    return max(3.0 * noise_deg, 0.5)
+
+
 def robust_cost(resid, noise_deg, dist_m=None, dem_sigma_m=None):
     """Clipped mean squared residual [deg^2] of a :func:`residual_profile`, offset removed:
     each bin counts at most ``(max(3 noise, 0.5 deg))^2``, so a few gross bins (a near rock)
@@ -175,7 +181,7 @@ def robust_cost(resid, noise_deg, dist_m=None, dem_sigma_m=None):
     """
     ok = np.isfinite(resid)
     r = resid[ok]
-    c = max(3.0 * noise_deg, 0.5)
+    c = clip_bound_deg(noise_deg)
     if dist_m is None or dem_sigma_m is None:
         r = r - np.median(r)
         return float(np.mean(np.minimum(r * r, c * c)))
