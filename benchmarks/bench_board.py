@@ -10,7 +10,12 @@ memory (sampled from /proc every 20 ms), killed or not, position and heading err
 the limited/free time ratio; and the load average.
 
     python benchmarks/bench_board.py --db DB --dem DEM [--cases 3] [--limit-mb 256] [--cpu 0]
-        [--work DIR]
+        [--work DIR] [--board-python PATH]
+
+``--board-python`` runs the board commands with another environment's Python: a board install
+(``pip install skyfix``, no extras), as a rover carries it. The acquisitions are simulated here,
+which needs the ground install this script runs in. Measured in the ground install, the board
+commands carry what its extras drag in (numba loads SciPy's BLAS where SciPy is installed).
 
 The requirement's database is the README's 7 x 7 km at 5 m over the Sierra DEM:
 ``skyfix build-db ../shared/data/dem/sierra_nevada_30m.tif -o DB --bounds -2020450 238257
@@ -140,6 +145,8 @@ def main(argv=None):
     ap.add_argument("--limit-mb", type=int, default=256)
     ap.add_argument("--cpu", type=int, default=0)
     ap.add_argument("--work", default="/tmp/skyfix_bench_board")
+    ap.add_argument("--board-python", default=sys.executable,
+                    help="the Python of the install that runs the board commands")
     args = ap.parse_args(argv)
     from skyfix.database import open_database
     from skyfix.dem import load_dem
@@ -152,7 +159,8 @@ def main(argv=None):
     cg, how = _cgroup(args.limit_mb)
     print(f"memory limit {args.limit_mb} MB: {how}; pinned to CPU {args.cpu}; load average "
           f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}", flush=True)
-    skyfix = [sys.executable, "-m", "skyfix.cli.main", "-q"]
+    skyfix = [args.board_python, "-m", "skyfix.cli.main", "-q"]
+    print(f"board commands run by {args.board_python}", flush=True)
     print(f"{'case':30s} {'command':8s} {'limit':6s} {'wall s':>7s} {'cpu s':>6s} {'RSS MB':>7s} "
           f"{'anon MB':>7s} {'killed':>6s} {'pos m':>7s} {'head deg':>8s} {'conf':>5s}")
     ratios = []

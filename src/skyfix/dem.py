@@ -365,9 +365,10 @@ def _fill_voids(z: np.ndarray, max_cells: int) -> VoidReport:
 
 
 def _within_distance(valid: np.ndarray, max_cells: int) -> np.ndarray:
-    from scipy.ndimage import distance_transform_edt
+    from .nearest import nearest_valid
 
-    return distance_transform_edt(~valid) <= max_cells
+    dist2, _, _ = nearest_valid(valid)
+    return dist2 <= float(max_cells) ** 2  # squares of whole cells: exact in float64
 
 
 def write_dem(path, dem: Dem) -> Path:

@@ -2,8 +2,8 @@
 
 A rover's install (``pip install skyfix``) holds what ``detect``, ``profile``, ``locate`` and
 ``heading`` need. Dask (building a database with worker processes), matplotlib (figures, reports,
-``--plot``) and scikit-learn (training the sky model, the ``bayes`` detector's online classifier)
-come with ``pip install "skyfix[ground]"``. Asking for one of those features without them is a
+``--plot``), scikit-learn (training the sky model, the ``bayes`` detector's online classifier) and
+SciPy (simulating a world that differs from the map) come with ``pip install "skyfix[ground]"``. Asking for one of those features without them is a
 :class:`MissingDependencyError` that names the install, never an ImportError traceback.
 """
 
@@ -15,7 +15,8 @@ from .errors import SkyfixError
 
 GROUND_INSTALL = 'pip install "skyfix[ground]"'
 #: the names users know these by (the import names differ)
-_PACKAGE = {"sklearn": "scikit-learn", "distributed": "Dask (distributed)", "dask": "Dask"}
+_PACKAGE = {"sklearn": "scikit-learn", "distributed": "Dask (distributed)", "dask": "Dask",
+            "scipy": "SciPy"}
 
 
 class MissingDependencyError(SkyfixError):

@@ -161,7 +161,7 @@ def _mask_covered(coarse: Dem, finer: list[Dem]) -> Dem:
     neighbours) a finer member holds: every coarse cell that reaches beyond the finer members
     keeps its four corners, so no ring of terrain is lost at their edge (within that overlap the
     higher of the two surfaces wins, a fraction of a coarse cell from the fine DEM's edge)."""
-    from scipy import ndimage
+    import cv2  # not scipy.ndimage: the board install (locate with several DEMs) has no scipy
 
     ny, nx = coarse.z.shape
     xs = coarse.x0 + np.arange(nx) * coarse.dx
@@ -173,7 +173,9 @@ def _mask_covered(coarse: Dem, finer: list[Dem]) -> Dem:
         h = np.full(z.shape, np.nan)
         if inside.any():
             h[inside] = f.height_at(gx[inside], gy[inside])
-        covered = ndimage.binary_erosion(np.isfinite(h), np.ones((3, 3), bool), border_value=0)
+        # a node is covered when it and its 8 neighbours are; beyond the grid counts as uncovered
+        covered = cv2.erode(np.isfinite(h).astype(np.uint8), np.ones((3, 3), np.uint8),
+                            borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
         z[covered] = np.nan
     return Dem(z, coarse.x0, coarse.y0, coarse.dx, coarse.dy, coarse.crs_wkt, coarse.crs_name,
                source=coarse.source, checksum=coarse.checksum, voids=coarse.voids, body=coarse.body,

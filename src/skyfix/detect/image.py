@@ -143,7 +143,7 @@ def fill_invalid(arr, valid):
     column above and below the data, nearest valid pixel elsewhere."""
     if valid.all() or not valid.any():
         return arr
-    from scipy import ndimage
+    from ..nearest import nearest_valid
 
     if arr.ndim == 2:
         out = arr.copy()
@@ -156,9 +156,8 @@ def fill_invalid(arr, valid):
     # strongly anisotropic distance: take the nearest valid pixel of the same column when there is
     # one (replicating the edge row vertically makes no horizontal seam, which isotropic nearest
     # filling does where two mosaic tiles meet)
-    idx = ndimage.distance_transform_edt(~valid, sampling=(1.0, 64.0), return_distances=False,
-                                         return_indices=True)
-    return arr[tuple(idx)]
+    _, rows, cols = nearest_valid(valid, row_spacing=1.0, col_spacing=64.0)
+    return arr[rows, cols]
 
 
 def downscale_factor(H, W, work_pixels):

@@ -65,7 +65,7 @@ class MatchConfig:
     top_k : candidates returned, in distinct basins
     nms_radius_m : [m] two candidates are at least this far apart
     slice_rows : positions processed at once (memory ~ slice_rows * bins * 40 bytes)
-    workers : threads (scipy.fft, BLAS; one goes to the block reader when prefetching)
+    workers : threads (BLAS; one goes to the block reader when prefetching)
     prefetch : read and decompress the next blocks in a thread while scoring
     min_observed : refuse queries with fewer observed bins than this
     """
@@ -289,7 +289,7 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
         r_ = np.concatenate([b for _, b, _ in pend])
         c_ = np.concatenate([c for _, _, c in pend])
         pend, pend_n = [], 0
-        es, sh = score_profiles(_to_float(raw_, scale, missing), query, config.workers)
+        es, sh = score_profiles(_to_float(raw_, scale, missing), query)
         found.append((r_, c_, es.astype(np.float32), (sh * (360.0 / n)).astype(np.float32)))
         return raw_.shape[0]
 

@@ -219,7 +219,6 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         planet = getattr(db, "planet", None) or "earth"
         if isinstance(planet, dict):
             planet = planet.get("name") or planet.get("radius_m") or "earth"
-    workers = config.match.workers
     notes = list(notes)
     if config.match.remove_tilt and not tilt_determinable(np.isfinite(q)):
         # A single frame or a partial view spans too narrow an arc to tell a tilt from a
@@ -246,7 +245,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         gx, gy = gx[ok], gy[ok]
         prepare_query(q, config.match.remove_tilt, config.match.min_observed)  # validates the view
         pts = render_points(dem, gx, gy, camera_height_m=camera_height_m, planet=planet, n_bins=n)
-        _, sh, _ = robust_scores(pts, q, remove_tilt=config.match.remove_tilt, workers=workers)
+        _, sh, _ = robust_scores(pts, q, remove_tilt=config.match.remove_tilt)
         # Candidates by the clipped cost: rocks covering a quarter of the view (OCCL) named the
         # wrong outlier bins at the sum-of-squares optimum and kept the true basin out of the
         # refined few; clipped, each rock bin costs the same everywhere.

@@ -45,7 +45,7 @@ def inside_dem(dem, xs, ys, margin):
     return np.asarray(dem.contains(xs, ys, margin), bool) & np.isfinite(dem.height_at(xs, ys))
 
 
-def refine_grid(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_tilt, workers,
+def refine_grid(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_tilt,
             max_moves=3, renders=None):
     """Local grid search (9 x 9 per level, 4x finer each level) around (x, y) [m].
 
@@ -68,7 +68,7 @@ def refine_grid(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_t
                 break
             gx, gy = gx[ok], gy[ok]
             sc, sh = score_points(dem, gx, gy, q, camera_height_m=camera_height_m, planet=planet,
-                                   n_bins=n, remove_tilt=remove_tilt, workers=workers,
+                                   n_bins=n, remove_tilt=remove_tilt,
                                    renders=renders)
             i = int(np.argmin(sc))
             on_edge = max(abs(gx[i] - x), abs(gy[i] - y)) > 3.5 * step
@@ -114,7 +114,7 @@ def refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, plan
         return ql if np.isfinite(ql).sum() >= 20 else q
 
     kw = dict(camera_height_m=camera_height_m, planet=planet,
-              remove_tilt=config.match.remove_tilt, workers=config.match.workers, renders=renders)
+              remove_tilt=config.match.remove_tilt, renders=renders)
     world = world_at(cx, cy)
     p0, r0 = harmonic_tilt(q, body_profile(world, ch, n_bins=n))
     att = fit(world, ch, prior_pitch_deg + p0, prior_roll_deg + r0, config.restarts_deg)

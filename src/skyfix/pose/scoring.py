@@ -123,7 +123,7 @@ def clipped_costs(p, q, shift_bins, remove_tilt=True, clip_deg=0.5):
     return np.mean(np.minimum(r * r, clip_deg * clip_deg), axis=1)
 
 
-def robust_scores(p, q, *, remove_tilt=True, workers=2, rounds=2):
+def robust_scores(p, q, *, remove_tilt=True, rounds=2):
     """Shift search scores of skylines ``p`` (N, n) [deg] against ``q`` with outlier bins dropped.
 
     Plain sums of squares let a few gross bins (a 5 deg outlier weighs as much as 600 bins of
@@ -135,7 +135,7 @@ def robust_scores(p, q, *, remove_tilt=True, workers=2, rounds=2):
     q = np.asarray(q, np.float64)
     n_obs = int(np.isfinite(q).sum())
     qm = q
-    sc, sh = score_profiles(p, prepare_query(qm, remove_tilt, min_observed=8), workers)
+    sc, sh = score_profiles(p, prepare_query(qm, remove_tilt, min_observed=8))
     for _ in range(rounds):
         # The reference point whose residuals name the outliers: the lowest clipped cost, not
         # the lowest sum of squares -- near rocks covering 10 % of the view pull the plain
@@ -149,17 +149,17 @@ def robust_scores(p, q, *, remove_tilt=True, workers=2, rounds=2):
         if np.array_equal(np.isfinite(q_new), np.isfinite(qm)):
             break
         qm = q_new
-        sc, sh = score_profiles(p, prepare_query(qm, remove_tilt, min_observed=8), workers)
+        sc, sh = score_profiles(p, prepare_query(qm, remove_tilt, min_observed=8))
     return sc, sh, qm
 
 
-def score_points(dem, xs, ys, q, *, camera_height_m, planet, n_bins, remove_tilt=True, workers=2,
+def score_points(dem, xs, ys, q, *, camera_height_m, planet, n_bins, remove_tilt=True,
                  renders=None):
     """(scores [deg^2], shifts [bins]) of skylines rendered at (xs, ys) [m] against the query
     ``q`` [deg], by :func:`robust_scores` (``renders``: see :func:`render_points`)."""
     p = render_points(dem, xs, ys, camera_height_m=camera_height_m, planet=planet, n_bins=n_bins,
                       renders=renders)
-    sc, sh, _ = robust_scores(p, q, remove_tilt=remove_tilt, workers=workers)
+    sc, sh, _ = robust_scores(p, q, remove_tilt=remove_tilt)
     return sc, sh
 
 

@@ -103,8 +103,10 @@ def world_dem(map_dem: Dem, errors: MapErrors = MapErrors(), seed: int = 0) -> D
     """The world a rover sees where the map says ``map_dem`` (same CRS and body; cells
     ``refine`` times finer; shifted by ``errors.shift_m`` in a direction drawn from ``seed``)."""
     import cv2
-    from scipy import ndimage
 
+    from ..optional import require
+
+    ndimage = require("scipy.ndimage", "simulating map errors (a world DEM that differs from the map)")
     rng = np.random.default_rng([int(seed), 31])
     k = int(errors.refine)
     ny, nx = map_dem.z.shape
