@@ -439,6 +439,68 @@ def test_unshuffle_undelta_inverts_numcodecs_filters():
     np.testing.assert_array_equal(out, x)
 
 
+def _skyline_like(rng, shape):
+    """int16 skylines [0.01 deg] that vary smoothly across positions and azimuths, with the
+    store's missing value in places and values near both ends of int16 (the deltas wrap)."""
+    ny, nx, nb = shape
+    a = np.arange(nb) * (2 * np.pi / nb)
+    base = 800 * np.sin(a)[None, None] + 30 * np.arange(ny)[:, None, None] \
+        - 20 * np.arange(nx)[None, :, None]
+    x = (base + rng.normal(0, 5, shape)).astype(np.int16)
+    x[0, 0, :3] = [MISSING, 32767, MISSING]
+    return x
+
+
+@pytest.mark.parametrize("block", [1, 3, 8])
+def test_skyline_layouts_round_trip_through_zarr_and_the_direct_reader(tmp_path, block):
+    """The layout a build writes now (transposed to (azimuth, y, x) before the delta, for blocks
+    of more than one position) and the one earlier stores hold: zarr-python reads back what was
+    written, and the direct reader gives the same arrays."""
+    from zarr.codecs import Delta, Shuffle, ZstdCodec
+
+    from skyfix.database.build import skyline_codecs
+
+    rng = np.random.default_rng(block)
+    shape = (2 * block + 1, 2 * block, 24)  # edge chunks partly outside the array
+    x = _skyline_like(rng, shape)
+    earlier = {"filters": [Delta(dtype="i2")],
+               "compressors": [Shuffle(elementsize=2), ZstdCodec(level=9, checksum=True)]}
+    for name, codecs in (("now", skyline_codecs(block)), ("earlier", earlier)):
+        a = zarr.create_array(str(tmp_path / f"{name}.zarr"), shape=shape, dtype="int16",
+                              chunks=(block, block, shape[2]), fill_value=MISSING, **codecs)
+        a[:] = x
+        a = zarr.open_array(str(tmp_path / f"{name}.zarr"), mode="r")
+        np.testing.assert_array_equal(np.asarray(a[:]), x)
+        read = chunk_reader(a)
+        assert read is not None, name
+        for br in range(-(-shape[0] // block)):
+            for bc in range(-(-shape[1] // block)):
+                got = read((br, bc, 0))
+                want = np.asarray(a[br * block:(br + 1) * block, bc * block:(bc + 1) * block])
+                np.testing.assert_array_equal(got[:want.shape[0], :want.shape[1]], want)
+    names = [c["name"] for c in json.loads((tmp_path / "now.zarr" / "zarr.json").read_text())["codecs"]]
+    assert (names[0] == "transpose") == (block > 1)
+
+
+def test_the_transposed_layout_is_smaller_on_real_skylines(clean_db, tmp_path):
+    """What the transpose is for: the same skylines, stored both ways, take less room with it."""
+    from zarr.codecs import Delta, Shuffle, ZstdCodec
+
+    from skyfix.database.build import skyline_codecs
+
+    x = np.asarray(zarr.open_group(str(clean_db), mode="r")["elevation"][:])
+    earlier = {"filters": [Delta(dtype="i2")],
+               "compressors": [Shuffle(elementsize=2), ZstdCodec(level=9, checksum=True)]}
+    size = {}
+    for name, codecs in (("now", skyline_codecs(x.shape[0])), ("earlier", earlier)):
+        a = zarr.create_array(str(tmp_path / f"{name}.zarr"), shape=x.shape, dtype="int16",
+                              chunks=x.shape, fill_value=MISSING, **codecs)
+        a[:] = x
+        size[name] = sum(f.stat().st_size for f in (tmp_path / f"{name}.zarr" / "c").rglob("*")
+                         if f.is_file())
+    assert size["now"] < 0.95 * size["earlier"], size
+
+
 def test_other_chunk_layouts_are_read_through_zarr(tmp_path):
     a = zarr.create_array(str(tmp_path / "plain.zarr"), shape=(4, 4, 8), chunks=(2, 2, 8),
                           dtype="int16")

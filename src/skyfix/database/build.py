@@ -3,9 +3,13 @@ its marker), resumable, through any ``concurrent.futures.Executor`` (:mod:`.exec
 
 Compression (measured on sierra_nevada_30m at 5 m, one 64 x 64 block, 720 raw bytes per skyline):
 zstd 9 alone 276 B/skyline, blosc-zstd with byte shuffle 277, delta along the azimuth + byte
-shuffle + zstd 9: 171 B/skyline at ~40 ms to encode a block (rendering it takes seconds). The
-delta and shuffle codecs come from numcodecs (readable by zarr-python; not in the zarr v3 core
-spec).
+shuffle + zstd 9: 171 B/skyline at ~40 ms to encode a block (rendering it takes seconds).
+Stores built since 2026-11-26 first transpose the chunk to (azimuth, y, x), so the delta runs along x, from
+each position to its neighbour at the same azimuth: on 16 blocks of the 7 x 7 km Sierra store at
+5 m, 212 -> 185 B/skyline (-13 %; along y -14 %, a second difference +1 %, zstd 13 instead of 9
+-0.5 % at 4x the time, blosc's bit shuffle +11 %). Stores of the earlier layout stay readable.
+The delta and shuffle codecs come from numcodecs (readable by zarr-python; not in the zarr v3
+core spec); the transpose is a core codec.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from ..errors import DatabaseError, OutputExistsError, ParameterError
 from ..planets import Planet, get_planet, resolve_planet
 from .executors import check_executor_options, make_executor
 from .integrity import clean_partials, intact_blocks, root_state
+from .chunks import TRANSPOSE
 from .layout import (BLOCK, COMPRESSED_SHARE, FORMAT, FORMAT_VERSION, Grid, MARKER_DIR,
                      MAX_BUILD_BYTES, MAX_POSITIONS, META_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG,
                      array_sha256, marker_document, marker_name, quantise)
@@ -151,10 +156,14 @@ def build_params(*, dem_sha256: str, grid: Grid, bounds, camera_height_m: float,
             "skip_tol_deg": SKIP_TOL_DEG}
 
 
-def _codecs():
-    from zarr.codecs import Delta, Shuffle, ZstdCodec
+def skyline_codecs(block: int) -> dict:
+    """The zarr codecs of the elevation array for blocks of ``block`` x ``block`` positions."""
+    from zarr.codecs import Delta, Shuffle, TransposeCodec, ZstdCodec
 
-    return {"filters": [Delta(dtype="i2")],
+    # numcodecs' Delta flattens its input in memory order when that is Fortran-contiguous, which a
+    # transposed block of one position (1, 1, bins) is: no transpose there (nothing to predict from)
+    order = [TransposeCodec(order=TRANSPOSE)] if block > 1 else []
+    return {"filters": [*order, Delta(dtype="i2")],
             "compressors": [Shuffle(elementsize=2), ZstdCodec(level=9, checksum=True)]}
 
 
@@ -172,7 +181,7 @@ def _create_store(out: Path, grid: Grid, bins: int, attrs: dict) -> None:
         g.create_array("elevation", shape=(grid.ny, grid.nx, bins), chunks=(b, b, bins),
                        dtype="int16", fill_value=MISSING, dimension_names=("y", "x", "azimuth"),
                        attributes={"units": "deg", "scale_deg": SCALE_DEG, "missing": MISSING},
-                       **_codecs())
+                       **skyline_codecs(b))
         small = {"compressors": [ZstdCodec(level=9, checksum=True)]}
         g.create_array("ground_z", shape=grid.shape, chunks=(b, b), dtype="float32", fill_value=np.nan,
                        dimension_names=("y", "x"), attributes={"units": "m"}, **small)

@@ -7,9 +7,9 @@ file is read, zstd decompresses it (its checksum checked) and one numba pass und
 and the delta together: 1.9 s of the search's reader thread for the same data
 (``benchmarks/bench_locate.py``), the arrays identical.
 
-Only the layout skyfix writes takes this path (``build.py``: Delta(i2), little-endian bytes,
-Shuffle(2), zstd; regular chunks, default chunk keys, a local folder). Any other array, and a
-big-endian machine, is read through zarr.
+Only the layouts skyfix writes take this path (``build.py``: optionally Transpose to (azimuth, y,
+x), then Delta(i2), little-endian bytes, Shuffle(2), zstd; regular chunks, default chunk keys, a
+local folder). Any other array, and a big-endian machine, is read through zarr.
 """
 
 from __future__ import annotations
@@ -20,8 +20,12 @@ from pathlib import Path
 import numba
 import numpy as np
 
-#: the codec chain (zarr v3 names, in encoding order) this module decodes
+#: the codec chain (zarr v3 names, in encoding order) this module decodes, with or without a
+#: transpose first
 LAYOUT = ("numcodecs.delta", "bytes", "numcodecs.shuffle", "zstd")
+#: the transpose a store's chunks take before the delta: (y, x, azimuth) -> (azimuth, y, x), so
+#: that the delta runs from each position to its neighbour at the same azimuth
+TRANSPOSE = (2, 0, 1)
 
 
 def chunk_reader(array):
@@ -36,7 +40,11 @@ def chunk_reader(array):
         base = Path(root) / array.store_path.path
     except AttributeError:  # another zarr format, or a store that is not a folder
         return None
-    codecs = meta.get("codecs", ())
+    codecs = list(meta.get("codecs", ()))
+    transposed = bool(codecs) and codecs[0].get("name") == "transpose"
+    if transposed:
+        if tuple((codecs.pop(0).get("configuration") or {}).get("order", ())) != TRANSPOSE:
+            return None
     if tuple(c.get("name") for c in codecs) != LAYOUT or str(meta.get("data_type")) != "int16":
         return None
     delta, byt, shuffle, _ = (c.get("configuration") or {} for c in codecs)
@@ -47,6 +55,8 @@ def chunk_reader(array):
     if grid.get("name") != "regular" or keys.get("name") != "default":
         return None
     shape = tuple(int(v) for v in grid["configuration"]["chunk_shape"])
+    if transposed and len(shape) != 3:
+        return None
     from numcodecs import Zstd
 
     zstd = Zstd()
@@ -57,7 +67,10 @@ def chunk_reader(array):
         out = np.empty(shape, np.int16)
         if len(raw) != 2 * out.size:
             raise ValueError(f"chunk {coords} holds {len(raw)} bytes, expected {2 * out.size}")
-        unshuffle_undelta(np.frombuffer(raw, np.uint8), out.reshape(-1))
+        if transposed:
+            unshuffle_undelta_transposed(np.frombuffer(raw, np.uint8), out)
+        else:
+            unshuffle_undelta(np.frombuffer(raw, np.uint8), out.reshape(-1))
         return out
 
     return read
@@ -72,3 +85,19 @@ def unshuffle_undelta(raw, out):
     for i in range(n):
         s = (s + (raw[i] | (raw[n + i] << 8))) & 0xFFFF
         out[i] = s - 0x10000 if s >= 0x8000 else s
+
+
+@numba.njit(cache=True, nogil=True)
+def unshuffle_undelta_transposed(raw, out):
+    """As :func:`unshuffle_undelta`, for a chunk transposed to (azimuth, y, x) before its delta:
+    ``raw`` uint8 (2 n,) -> ``out`` int16 (ny, nx, bins) in the array's own order."""
+    ny, nx, nb = out.shape
+    n = out.size
+    s = 0
+    i = 0
+    for a in range(nb):
+        for r in range(ny):
+            for c in range(nx):
+                s = (s + (raw[i] | (raw[n + i] << 8))) & 0xFFFF
+                out[r, c, a] = s - 0x10000 if s >= 0x8000 else s
+                i += 1
