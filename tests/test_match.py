@@ -202,6 +202,54 @@ def test_zarr_store_elevation_path_equals_brute_force(tmp_path):
     assert abs((c.heading_deg - 100.0 + 180) % 360 - 180) < 1.0
 
 
+def test_stores_of_both_chunk_layouts_give_the_same_search(tmp_path):
+    """A store written since the transposed layout and the same skylines in the earlier layout
+    (database/chunks.py reads the first as a transposed view, which the coarse pass gathers
+    along azimuth rows): the same candidates and scores, with and without the coarse stride and
+    the prior disc."""
+    import shutil
+
+    import zarr
+    from zarr.codecs import Delta, Shuffle, ZstdCodec
+
+    from skyfix.database import build_database, open_database
+    from skyfix.dem import write_dem
+
+    write_dem(tmp_path / "dem.tif", _bumpy_dem())
+    now = tmp_path / "now.zarr"
+    build_database(tmp_path / "dem.tif", now, (405.0, 405.0, 645.0, 605.0), 10.0,
+                   azimuth_bins=72, block=8, workers=0, progress=False)
+    earlier = tmp_path / "earlier.zarr"
+    shutil.copytree(now, earlier)
+    g = zarr.open_group(str(earlier), mode="r+")
+    old = g["elevation"]
+    x, attrs = np.asarray(old[:]), dict(old.attrs)
+    del g["elevation"]
+    a = g.create_array("elevation", shape=x.shape, chunks=old.chunks, dtype="int16",
+                       fill_value=old.fill_value, dimension_names=("y", "x", "azimuth"),
+                       attributes=attrs, filters=[Delta(dtype="i2")],
+                       compressors=[Shuffle(elementsize=2), ZstdCodec(level=9, checksum=True)])
+    a[:] = x
+    names = {p: [c["name"] for c in zarr.open_array(str(p / "elevation")).metadata.to_dict()["codecs"]]
+             for p in (now, earlier)}
+    assert names[now][0] == "transpose" and names[earlier][0] == "numcodecs.delta"
+    dbs = [open_database(p) for p in (now, earlier)]
+    assert all(d.is_complete for d in dbs)
+    xs, ys = np.meshgrid(dbs[0].x_coords, dbs[0].y_coords)
+    p = dbs[0].profiles_at(xs.ravel(), ys.ravel()).astype(float)
+    q = np.roll(p[int(np.argmin((xs.ravel() - 525.0) ** 2 + (ys.ravel() - 505.0) ** 2))], -20)
+    q[10:25] = np.nan
+    for cfg, kw in ((MatchConfig(min_observed=10, coarse_stride=2, stride_min_coverage=0.0,
+                                 keep_fraction=0.2), {}),
+                    (MatchConfig(min_observed=10, coarse_stride=1, keep_fraction=0.2), {}),
+                    (MatchConfig(min_observed=10, coarse_stride=2, stride_min_coverage=0.0),
+                     {"prior_xy": (525.0, 505.0), "prior_radius_m": 60.0})):
+        got = [match_database(d, q, cfg, **kw) for d in dbs]
+        assert got[0].n_positions == got[1].n_positions > 0
+        assert [(c.x, c.y, c.heading_deg, c.score) for c in got[0].candidates] == \
+            [(c.x, c.y, c.heading_deg, c.score) for c in got[1].candidates]
+
+
 @pytest.mark.parametrize("disc", [False, True])
 def test_subgrid_coarse_pass_reaches_every_position(store, disc):
     """With every subgrid node kept, the neighbourhoods of a stride-2 coarse pass cover every

@@ -31,7 +31,9 @@ TRANSPOSE = (2, 0, 1)
 def chunk_reader(array):
     """A function ``(chunk coordinates) -> int16 ndarray of the chunk's full shape`` reading
     ``array``'s chunks directly, or None when the array is not stored in :data:`LAYOUT` in a
-    local folder (then read it through zarr)."""
+    local folder (then read it through zarr). A chunk stored transposed comes back as a
+    transposed view of its stored (azimuth, y, x) order, not a copy: the same values, the azimuth
+    axis slowest in memory (the search gathers along azimuth rows where that matters)."""
     if sys.byteorder != "little":
         return None
     try:
@@ -64,14 +66,13 @@ def chunk_reader(array):
 
     def read(coords) -> np.ndarray:
         raw = zstd.decode((base / key(tuple(coords))).read_bytes())
-        out = np.empty(shape, np.int16)
+        out = np.empty((shape[2], shape[0], shape[1]) if transposed else shape, np.int16)
         if len(raw) != 2 * out.size:
             raise ValueError(f"chunk {coords} holds {len(raw)} bytes, expected {2 * out.size}")
-        if transposed:
-            unshuffle_undelta_transposed(np.frombuffer(raw, np.uint8), out)
-        else:
-            unshuffle_undelta(np.frombuffer(raw, np.uint8), out.reshape(-1))
-        return out
+        unshuffle_undelta(np.frombuffer(raw, np.uint8), out.reshape(-1))
+        # the stored (azimuth, y, x) order, seen as (y, x, azimuth): a view, not a copy (a
+        # transposing copy cost 1.3 ms a chunk; the search reads a quarter of the positions)
+        return out.transpose(1, 2, 0) if transposed else out
 
     return read
 
@@ -86,18 +87,3 @@ def unshuffle_undelta(raw, out):
         s = (s + (raw[i] | (raw[n + i] << 8))) & 0xFFFF
         out[i] = s - 0x10000 if s >= 0x8000 else s
 
-
-@numba.njit(cache=True, nogil=True)
-def unshuffle_undelta_transposed(raw, out):
-    """As :func:`unshuffle_undelta`, for a chunk transposed to (azimuth, y, x) before its delta:
-    ``raw`` uint8 (2 n,) -> ``out`` int16 (ny, nx, bins) in the array's own order."""
-    ny, nx, nb = out.shape
-    n = out.size
-    s = 0
-    i = 0
-    for a in range(nb):
-        for r in range(ny):
-            for c in range(nx):
-                s = (s + (raw[i] | (raw[n + i] << 8))) & 0xFFFF
-                out[r, c, a] = s - 0x10000 if s >= 0x8000 else s
-                i += 1

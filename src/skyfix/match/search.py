@@ -162,8 +162,23 @@ def _to_float(raw: np.ndarray, scale: float, missing: int) -> np.ndarray:
     return np.where(np.isfinite(p), p, np.float32(0.0))
 
 
-def _coarse_profiles(raw: np.ndarray, f: int, scale: float, missing: int) -> np.ndarray:
-    """float32 (N, n / f) [deg]: groups of ``f`` bins averaged, straight from the int16 store."""
+def _coarse_profiles(elev: np.ndarray, rows: np.ndarray, f: int, scale: float,
+                     missing: int) -> np.ndarray:
+    """float32 (N, n / f) [deg]: groups of ``f`` bins averaged for the positions ``rows`` of a
+    block's (positions, n) skylines, straight from the int16 store."""
+    by_bin = elev.T
+    if elev.dtype == np.int16 and by_bin.flags.c_contiguous:
+        # A chunk stored (azimuth, position) and read as a view (database/chunks.py): gathering
+        # positions along each azimuth's row reads memory in order; gathering whole skylines
+        # would read one value per cache line (the coarse pass took 1.6 s instead of 1.0).
+        raw_t = np.take(by_bin, rows, axis=1)  # 5x faster than by_bin[:, rows] here
+        if not (raw_t == missing).any():
+            pc = raw_t[0::f].astype(np.float32)
+            for k in range(1, f):
+                pc += raw_t[k::f]
+            pc *= np.float32(scale / f)
+            return np.ascontiguousarray(pc.T)
+    raw = elev[rows]
     if raw.dtype == np.int16 and not (raw == missing).any():
         # Strided adds into one float32 array: no full-resolution float copy of the block.
         pc = raw[:, 0::f].astype(np.float32)
@@ -337,18 +352,17 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
             for s0 in range(0, idx_all.size, config.slice_rows):
                 idx = idx_all[s0:s0 + config.slice_rows]
                 ta = time.perf_counter()
-                raw = elev[s0:s0 + idx.size] if sel is None else elev[idx]
                 n_pos += idx.size
                 if coarse_q is not None:
-                    cs, _ = score_dense(_coarse_profiles(raw, f, scale, missing), coarse_q)
+                    cs, _ = score_dense(_coarse_profiles(elev, idx, f, scale, missing), coarse_q)
                     keep = max(config.keep_min, int(math.ceil(config.keep_fraction * idx.size)))
                     part = np.argpartition(cs, keep - 1)[:keep] if keep < idx.size else \
                         np.arange(idx.size)
                     t_coarse += time.perf_counter() - ta
                     # Survivors are few per slice: batch them, FFT calls cost ~100 us each.
-                    push(raw[part], rr[idx[part]], cc[idx[part]])
+                    push(elev[idx[part]], rr[idx[part]], cc[idx[part]])
                 else:
-                    push(raw, rr[idx], cc[idx])
+                    push(elev[s0:s0 + idx.size] if sel is None else elev[idx], rr[idx], cc[idx])
             t0 = time.perf_counter()
         tb = time.perf_counter()
         t_read += tb - t0
@@ -400,7 +414,7 @@ def _subgrid_survivors(elev, rr, cc, sel, stride, coarse_q, f, scale, missing, c
     kept = []
     for s0 in range(0, nodes.size, config.slice_rows):
         sl = nodes[s0:s0 + config.slice_rows]
-        cs, _ = score_dense(_coarse_profiles(elev[sl], f, scale, missing), coarse_q)
+        cs, _ = score_dense(_coarse_profiles(elev, sl, f, scale, missing), coarse_q)
         area = sl.size * stride * stride
         keep = int(math.ceil(max(config.keep_min, config.keep_fraction * area) / w))
         kept.append(sl[np.argpartition(cs, keep - 1)[:keep]] if keep < sl.size else sl)
