@@ -86,4 +86,3 @@ def unshuffle_undelta(raw, out):
     for i in range(n):
         s = (s + (raw[i] | (raw[n + i] << 8))) & 0xFFFF
         out[i] = s - 0x10000 if s >= 0x8000 else s
-
