@@ -1,5 +1,6 @@
 """The attitude fits' inner pieces against the plain NumPy they replace, to the bit: the median
-by partition, and the body profile ordered by a roll instead of a sort."""
+by partition, and the body profile ordered by a roll instead of a sort (from contiguous
+coordinates, wrapped to [0, 360) without np.remainder)."""
 
 import numpy as np
 import pytest

@@ -37,30 +37,35 @@ class BodyProfiler:
         az = np.radians(np.arange(m) * 360.0 / m)
         el = np.radians(np.nan_to_num(w))
         ce = np.cos(el)
-        self._d = np.stack([ce * np.sin(az), ce * np.cos(az), np.sin(el)], axis=1)
+        # (3, m) so that each coordinate is one contiguous row: numpy's vectorised arctan2 and
+        # hypot take contiguous input only (strided columns of an (m, 3) array cost 3x)
+        self._d = np.ascontiguousarray(np.stack([ce * np.sin(az), ce * np.cos(az), np.sin(el)]))
         self._prior = r_world_body(0.0, prior_pitch_deg, prior_roll_deg)
         self._centres = np.arange(n_bins) * 360.0 / n_bins
+        self._centres_wrapped = self._centres % 360.0
 
     def __call__(self, yaw_deg, pitch_deg=0.0, roll_deg=0.0) -> np.ndarray:
         """The body-frame profile [deg] (``n_bins``) for this yaw, pitch and roll [deg]."""
         rot = self._prior @ r_world_body(yaw_deg, pitch_deg, roll_deg).T
-        b = self._d @ rot.T
-        azb = np.degrees(np.arctan2(b[:, 0], b[:, 1])) % 360.0
-        elb = np.degrees(np.arctan2(b[:, 2], np.hypot(b[:, 0], b[:, 1])))
+        bx, by, bz = rot @ self._d
+        a = np.degrees(np.arctan2(bx, by))
+        # ``a % 360`` for a in [-180, 180] without np.remainder's cost (a quarter of a call),
+        # to the bit: a + 360 below zero (-1e-17 gives 360.0), +0.0 for -0.0
+        azb = a + np.where(a < 0.0, 360.0, 0.0)
+        elb = np.degrees(np.arctan2(bz, np.hypot(bx, by)))
         # Under a tilt of a few degrees the rotated azimuths still increase, only rotated round
         # the circle: one roll orders them (sorting was a quarter of an attitude fit), and the
         # periodic interpolation is np.interp's own (period=360: wrap, sort, pad) without its
         # sort. Ties or a fold (a steep tilt) take np.interp's path as it is.
-        xs = azb % 360.0  # what np.interp's period wrap does to them (-1e-17 % 360 is 360.0)
+        xs = np.where(azb >= 360.0, azb - 360.0, azb)  # np.interp's period wrap: 360.0 -> 0.0
         k = int(np.argmin(xs))
-        xs = np.roll(xs, -k)
+        xs = np.concatenate((xs[k:], xs[:k]))
         if not np.all(xs[1:] > xs[:-1]):
             order = np.argsort(azb)
             return np.interp(self._centres, azb[order], elb[order], period=360.0)
-        es = np.roll(elb, -k)
         xp = np.concatenate((xs[-1:] - 360.0, xs, xs[:1] + 360.0))
-        fp = np.concatenate((es[-1:], es, es[:1]))
-        return np.interp(self._centres % 360.0, xp, fp)
+        fp = np.concatenate((elb[k - 1:k] if k else elb[-1:], elb[k:], elb[:k], elb[k:k + 1]))
+        return np.interp(self._centres_wrapped, xp, fp)
 
 
 def relevel(profile_deg, pitch_deg, roll_deg, *, prior_pitch_deg=0.0, prior_roll_deg=0.0):
