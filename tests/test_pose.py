@@ -526,3 +526,35 @@ def test_kept_renders_equal_fresh_ones_and_are_not_redone(monkeypatch):
         assert np.array_equal(el[i], one.elevation_deg[0], equal_nan=True)
         assert np.array_equal(dist[i], one.skyline_distance_m[0], equal_nan=True)
     assert np.array_equal(el2, el[::-1], equal_nan=True)
+
+
+def test_grid_levels_are_five_by_five(world):
+    """The grid refinement's levels span +/- 2 of their steps (the level before placed the best
+    point within half its step, two of these), re-centred where the best point is on the edge:
+    from 17 m off, on a clean profile, they land on the same point as 9 x 9 levels do, and the
+    finest grid ends centred on its best point, the 5 x 5 around it there for the position
+    sigma."""
+    from skyfix.pose.refine import refine_grid
+    from skyfix.pose.scoring import Renders
+
+    dem, _ = world
+    tx, ty = 733.3, 871.9
+    q = synthetic_profile(dem, tx, ty, 123.4, noise_deg=0.02, rng=5).elevation_deg
+    kw = dict(camera_height_m=1.5, planet=None, remove_tilt=True)
+    counts = {}
+    for half in (2, 4):
+        renders = Renders(dem, camera_height_m=1.5, planet=None)
+        counts[half] = renders
+        res = refine_grid(dem, q, 745.0, 860.0, 5.0, 3, half=half, renders=renders, **kw)
+        if half == 2:
+            new = res
+        else:
+            old = res
+    assert new[:2] == old[:2]
+    assert math.hypot(new[0] - tx, new[1] - ty) < 0.5  # the finest step is 0.31 m (0.32 m here)
+    gx, gy, sc, step = new[4]
+    assert step == 5.0 / 16
+    assert gx.size == 25 and (gx.min() + gx.max()) / 2 == new[0] and (gy.min() + gy.max()) / 2 == new[1]
+    assert sc.min() == new[2]
+    # what it saves: the points rendered (9 x 9 at each of three levels before)
+    assert len(counts[2]._kept) < 0.5 * len(counts[4]._kept)

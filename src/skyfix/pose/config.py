@@ -14,7 +14,7 @@ class PoseConfig:
     """Pose estimation settings.
 
     refine_candidates : how many of the matcher's candidates are refined from the DEM
-    levels : refinement levels (each 4x finer, 9 x 9 grid)
+    levels : refinement levels (each 4x finer, 5 x 5 grid)
     grid_step_m : [m] first grid step without a database (scenario 2)
     render_bins : azimuth bins of the horizons rendered for the attitude fit
     restarts_deg : [deg] offsets of the Gauss-Newton restarts per axis

@@ -1,6 +1,6 @@
 """Refinement of candidate positions from the DEM: fresh skylines on finer and finer local grids
-(each level 4x finer, 9 x 9 points), a level whose best point is on its edge re-centred, then the
-attitude fit and a polish of the position on the attitude-refitted cost.
+(each level 4x finer, 5 x 5 points), a level whose best point is on its edge re-centred, then
+the attitude fit and a polish of the position on the attitude-refitted cost.
 """
 
 from __future__ import annotations
@@ -46,32 +46,43 @@ def inside_dem(dem, xs, ys, margin):
 
 
 def refine_grid(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_tilt,
-            max_moves=3, renders=None):
-    """Local grid search (9 x 9 per level, 4x finer each level) around (x, y) [m].
+                max_moves=3, renders=None, half=2):
+    """Local grid search around (x, y) [m], each level 4x finer than the one before.
 
-    When the best point lies on the grid's edge the level is re-centred there and redone (at most
-    ``max_moves`` times in all): with 10 deg pitch/roll the database's candidate can sit 10-15 m
-    from the true basin, beyond the first level's +/- 4 steps.
-    Returns (x, y, score, heading_deg, local) with ``local`` the finest level's grid and scores
-    (for the position sigma)."""
+    Each level spans +/- ``half`` steps (5 x 5 points): the level before placed the best point
+    within half its step, two of these. When the best point lies on a grid's edge the level is
+    re-centred there and redone (at most ``max_moves`` times in all): with 10 deg of pitch/roll
+    the database's candidate can sit 10-15 m from the true basin. The finest level ends centred
+    on its best point, so ``local`` holds its whole neighbourhood for the position sigma
+    (:func:`~skyfix.pose.confidence.position_sigma`). 9 x 9 grids (``half=4``), as before
+    2026-11-26, rendered twice the points for the same fixes (40 scenario-1 cases: the same
+    tallies and calibration, docs/board-memory.md).
+    Returns (x, y, score, heading_deg, local) with ``local`` (xs, ys, scores, step) of the
+    finest level."""
     n = q.size
-    best = None
-    local = None
+
+    def level_at(x, y, step):
+        off = np.arange(-half, half + 1) * step
+        gx, gy = np.meshgrid(x + off, y + off)
+        gx, gy = gx.ravel(), gy.ravel()
+        ok = inside_dem(dem, gx, gy, 0.0)
+        if not ok.any():
+            return None
+        gx, gy = gx[ok], gy[ok]
+        sc, sh = score_points(dem, gx, gy, q, camera_height_m=camera_height_m, planet=planet,
+                              n_bins=n, remove_tilt=remove_tilt, renders=renders)
+        i = int(np.argmin(sc))
+        return gx, gy, sc, sh, i
+
+    best = local = None
     moves = 0
     for _ in range(levels):
         while True:
-            off = np.arange(-4, 5) * step
-            gx, gy = np.meshgrid(x + off, y + off)
-            gx, gy = gx.ravel(), gy.ravel()
-            ok = inside_dem(dem, gx, gy, 0.0)
-            if not ok.any():
+            r = level_at(x, y, step)
+            if r is None:
                 break
-            gx, gy = gx[ok], gy[ok]
-            sc, sh = score_points(dem, gx, gy, q, camera_height_m=camera_height_m, planet=planet,
-                                   n_bins=n, remove_tilt=remove_tilt,
-                                   renders=renders)
-            i = int(np.argmin(sc))
-            on_edge = max(abs(gx[i] - x), abs(gy[i] - y)) > 3.5 * step
+            gx, gy, sc, sh, i = r
+            on_edge = max(abs(gx[i] - x), abs(gy[i] - y)) > (half - 0.5) * step
             x, y = float(gx[i]), float(gy[i])
             best = (x, y, float(sc[i]), float(sh[i]) * 360.0 / n)
             local = (gx, gy, sc, step)
@@ -83,7 +94,13 @@ def refine_grid(dem, q, x, y, step, levels, *, camera_height_m, planet, remove_t
         step /= 4.0
     if best is None:
         raise SkyfixError(f"no refinement point near ({x:.1f}, {y:.1f}) lies inside the DEM")
-    return (*best, local)
+    gx, gy, sc, fine = local
+    if gx.size == (2 * half + 1) ** 2 and x == gx[gx.size // 2] and y == gy[gy.size // 2]:
+        return (*best, local)
+    # The best point is off the finest grid's centre: the grid around it for the sigma (most of
+    # its points are rendered already).
+    gx, gy, sc, sh, i = level_at(x, y, fine)
+    return float(gx[i]), float(gy[i]), float(sc[i]), float(sh[i]) * 360.0 / n, (gx, gy, sc, fine)
 
 
 def refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, planet,
@@ -135,7 +152,7 @@ def refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, plan
 
 def polish_position(dem, q, x, y, att, *, camera_height_m, planet, render_bins, prior_pitch_deg,
                      prior_roll_deg, noise, step_m=0.5, min_step_m=0.03, max_evals=120,
-                     dem_sigma_m=None):
+                     min_gain=1e-3, dem_sigma_m=None):
     """Compass search of the position [m] on the attitude-refitted cost (:func:`robust_cost`).
 
     The grid refinement (:func:`refine_grid`) ranks points by the shift search's score: whole-bin
@@ -143,8 +160,15 @@ def polish_position(dem, q, x, y, att, *, camera_height_m, planet, render_bins, 
     noise floor (~0.03 deg rms) hides metre-scale position information (a fix 1.3 m off whose
     own cost was three times the truth's). Here every trial point gets its own yaw, pitch and
     roll (Gauss-Newton from the current attitude, ~10 ms), so the cost is the model's own.
-    The 8 neighbours at the current step (``step_m`` at first) are tried; the best improvement
-    is taken and the step doubles (up to 8 ``step_m``), else it halves, down to ``min_step_m``.
+    The 8 neighbours at the current step (``step_m`` at first) are tried; the best is taken when
+    it lowers the cost by more than ``min_gain`` of it, and the step doubles (up to 8
+    ``step_m``), else the step halves, down to ``min_step_m``. After a move, the same direction
+    at the doubled step is tried alone first and taken if it gains (a pattern move): walks of
+    10-20 m from a tilt-biased grid point used up ``max_evals`` at eight fits a stride and
+    stopped short of the floor (a scenario-2 case 0.35 m off instead of 0.14). Without the
+    margin a wrong basin's flat floor kept the search stepping by 0.05 % gains until
+    ``max_evals`` (three of a fix's four candidates, 121 fits each): differences a thousand
+    times below what the cost's own sampling noise can tell apart.
     ``dem_sigma_m`` [m]: weigh bins by the DEM's trust there (:func:`robust_cost`).
     Returns (x, y, attitude, cost, residual profile [deg]).
     """
@@ -168,17 +192,32 @@ def polish_position(dem, q, x, y, att, *, camera_height_m, planet, render_bins, 
     if att is None:
         raise SkyfixError(f"the position ({x:.1f}, {y:.1f}) lies outside the DEM")
     ring = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1) if (i, j) != (0, 0)], float)
-    step, evals = float(step_m), 1
+    step, evals, last = float(step_m), 1, None
     while step >= min_step_m and evals < max_evals:
-        trials = evaluate(x + step * ring[:, 0], y + step * ring[:, 1], att)
-        evals += len(ring)
-        k = int(np.argmin([t[0] for t in trials]))
-        if trials[k][0] < cost:
+        known = {}
+        if last is not None:
+            # The direction that has just paid, at the new step, before the others: a walk of
+            # metres then costs one fit a stride instead of eight.
+            known[last], = evaluate([x + step * ring[last, 0]], [y + step * ring[last, 1]], att)
+            evals += 1
+            if known[last][0] < cost * (1.0 - min_gain):
+                x, y = x + step * ring[last, 0], y + step * ring[last, 1]
+                cost, att, resid = known[last]
+                step = min(2.0 * step, 8.0 * step_m)
+                continue
+        rest = [i for i in range(len(ring)) if i not in known]
+        for i, t in zip(rest, evaluate(x + step * ring[rest, 0], y + step * ring[rest, 1], att)):
+            known[i] = t
+        evals += len(rest)
+        k = min(known, key=lambda i: (known[i][0], i))
+        if known[k][0] < cost * (1.0 - min_gain):
             x, y = x + step * ring[k, 0], y + step * ring[k, 1]
-            cost, att, resid = trials[k]
+            cost, att, resid = known[k]
             step = min(2.0 * step, 8.0 * step_m)  # a long way to go: stride out
+            last = k
         else:
             step /= 2.0
+            last = None
     return float(x), float(y), att, float(cost), resid
 
 
