@@ -265,14 +265,15 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     if dem is not None:
         kw = dict(camera_height_m=camera_height_m, planet=planet, prior_pitch_deg=prior_pitch_deg,
                   prior_roll_deg=prior_roll_deg, noise=noise)
+        # "Another basin" is another answer beyond the tolerance: refined candidates often
+        # converge onto the best one, and comparing with a copy of itself said nothing.
+        # Without a database the answer is judged at scenario 2's tolerance (1 m), not 5 m.
+        sep = config.tolerance_m if db is not None else 1.0
+        kw["join_m"] = sep
         with stage(f"  {min(len(cands), config.refine_candidates)} candidates refined on the DEM") as st:
             results = refine_candidates(dem, q, cands[: config.refine_candidates], step0, config, **kw)
             st.result = f"best clipped cost {results[0]['cost']:.4f} deg^2" if results else "none"
         rest = list(cands[config.refine_candidates:])
-        # "Another basin" is another answer beyond the tolerance: refined candidates often
-        # converge onto the best one, and comparing with a copy of itself said nothing.
-        sep = config.tolerance_m if db is not None else 1.0
-        # Without a database the answer is judged at scenario 2's tolerance (1 m), not 5 m.
         out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg,
                       model, "locate" if db is not None else "locate_prior")
         if db is not None and (out["conf"] < config.retry_below or
