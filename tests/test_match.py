@@ -265,3 +265,32 @@ def test_subgrid_coarse_pass_reaches_every_position(store, disc):
     assert sub.n_scored_exact == scored.sum()
     assert np.array_equal(np.isfinite(sub.score_map), scored)
     assert np.allclose(sub.score_map[scored], exact.score_map[scored], rtol=1e-6, atol=1e-6)
+
+
+def test_score_sums_are_numpys_to_the_bit():
+    """The scores' last step in one numba pass gives the floats NumPy's whole-array passes gave
+    (float32 throughout, the same order; NaN carried)."""
+    from skyfix.match.scores import _finish_scores
+
+    def numpy_passes(s, corr, sq, u_q, m_obs):
+        s += np.float32(sq)
+        s -= 2.0 * corr[:, 0]
+        for i in range(1, corr.shape[1]):
+            d = corr[:, i]
+            d -= np.float32(u_q[i - 1])
+            d *= d
+            s -= d
+        np.maximum(s, 0.0, out=s)
+        s /= m_obs
+        return s
+
+    rng = np.random.default_rng(7)
+    for k in range(30):
+        N, K, n = int(rng.integers(1, 300)), int(rng.integers(1, 6)), int(rng.choice([90, 360]))
+        s = (rng.random((N, n)) * rng.uniform(0.1, 100)).astype(np.float32)
+        corr = rng.normal(0, rng.uniform(0.1, 30), (N, K, n)).astype(np.float32)
+        corr[0, 0, :2] = np.nan if k % 4 == 0 else corr[0, 0, :2]
+        sq, u_q, m_obs = float(rng.uniform(0, 200)), rng.normal(0, 5, K - 1).astype(np.float32), int(rng.integers(20, 360))
+        ref = numpy_passes(s.copy(), corr.copy(), sq, u_q, m_obs)
+        got = _finish_scores(s.copy(), corr.copy(), sq, u_q, m_obs, all_shifts=True)
+        assert np.array_equal(got.view(np.int32), ref.view(np.int32))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from ..errors import ParameterError
@@ -148,17 +149,31 @@ def score_dense(p: np.ndarray, dq: DenseQuery, all_shifts: bool = False):
     return _finish_scores(s, corr, dq.sq, dq.u_q, dq.m_obs, all_shifts)
 
 
+@numba.njit(cache=True, nogil=True)
+def _sum_squares(s, corr, sq, u_q, m_obs):
+    """``s`` (N, n) float32 in place: ``max(s + sq - 2 corr[:, 0] - sum_i (corr[:, i] -
+    u_q[i - 1])^2, 0) / m_obs``, in float32 and in the order NumPy's whole-array passes took
+    (the same floats); one pass over ``corr`` instead of a strided one per kernel, a third of
+    the search's coarse pass."""
+    N, K, n = corr.shape
+    two = np.float32(2.0)
+    zero = np.float32(0.0)
+    for r in range(N):
+        for j in range(n):
+            v = s[r, j] + sq
+            v -= two * corr[r, 0, j]
+            for i in range(1, K):
+                d = corr[r, i, j] - u_q[i - 1]
+                v -= d * d
+            if v < zero:
+                v = zero
+            s[r, j] = v / m_obs
+
+
 def _finish_scores(s, corr, sq, u_q, m_obs, all_shifts):
     n = s.shape[1]
-    s += np.float32(sq)
-    s -= 2.0 * corr[:, 0]
-    for i in range(1, corr.shape[1]):
-        d = corr[:, i]
-        d -= np.float32(u_q[i - 1])
-        d *= d
-        s -= d
-    np.maximum(s, 0.0, out=s)
-    s /= m_obs
+    _sum_squares(s, np.ascontiguousarray(corr, np.float32), np.float32(sq),
+                 np.ascontiguousarray(u_q, np.float32), np.float32(m_obs))
     if all_shifts:
         return s
     k = np.argmin(s, axis=1)
