@@ -196,31 +196,31 @@ def polish_position(dem, q, x, y, att, *, camera_height_m, planet, render_bins, 
     if att is None:
         raise SkyfixError(f"the position ({x:.1f}, {y:.1f}) lies outside the DEM")
     ring = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1) if (i, j) != (0, 0)], float)
+
     def joined():
         return join_m is not None and any(
             c <= cost and math.hypot(x - bx, y - by) <= join_m for bx, by, c in basins)
 
+    def gains(trial):
+        return trial[0] < cost * (1.0 - min_gain)
+
     step, evals, last = float(step_m), 1, None
     while step >= min_step_m and evals < max_evals and not joined():
-        known = {}
+        trials = {}
         if last is not None:
             # The direction that has just paid, at the new step, before the others: a walk of
             # metres then costs one fit a stride instead of eight.
-            known[last], = evaluate([x + step * ring[last, 0]], [y + step * ring[last, 1]], att)
+            trials[last], = evaluate([x + step * ring[last, 0]], [y + step * ring[last, 1]], att)
             evals += 1
-            if known[last][0] < cost * (1.0 - min_gain):
-                x, y = x + step * ring[last, 0], y + step * ring[last, 1]
-                cost, att, resid = known[last]
-                step = min(2.0 * step, 8.0 * step_m)
-                continue
-        rest = [i for i in range(len(ring)) if i not in known]
-        for i, t in zip(rest, evaluate(x + step * ring[rest, 0], y + step * ring[rest, 1], att)):
-            known[i] = t
-        evals += len(rest)
-        k = min(known, key=lambda i: (known[i][0], i))
-        if known[k][0] < cost * (1.0 - min_gain):
+        if last is None or not gains(trials[last]):
+            rest = [i for i in range(len(ring)) if i not in trials]
+            trials.update(zip(rest, evaluate(x + step * ring[rest, 0], y + step * ring[rest, 1],
+                                             att)))
+            evals += len(rest)
+        k = min(trials, key=lambda i: (trials[i][0], i))
+        if gains(trials[k]):
             x, y = x + step * ring[k, 0], y + step * ring[k, 1]
-            cost, att, resid = known[k]
+            cost, att, resid = trials[k]
             step = min(2.0 * step, 8.0 * step_m)  # a long way to go: stride out
             last = k
         else:
