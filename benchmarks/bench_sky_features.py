@@ -124,8 +124,9 @@ def main(argv=None):
         sf = (c == 1) | (c == 2)
         auc_sf = roc_auc_score(c[sf] == 1, lo[sf])
         auc_st = roc_auc_score(c == 1, lo)
-        print(f"{label:>14s} AUC sky/far {auc_sf:.3f} sky/all {auc_st:.3f} far>0 {np.mean(lo[c == 2] > 0):.3f} "
-              f"sky<0 {np.mean(lo[c == 1] < 0):.3f} terr>0 {np.mean(lo[c == 0] > 0):.3f}", flush=True)
+        print(f"{label:>14s} AUC sky/far {auc_sf:.3f} sky/all {auc_st:.3f} "
+              f"far>0 {np.mean(lo[c == 2] > 0):.3f} sky<0 {np.mean(lo[c == 1] < 0):.3f} "
+              f"terr>0 {np.mean(lo[c == 0] > 0):.3f}", flush=True)
 
 
 if __name__ == "__main__":
