@@ -32,11 +32,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from .dem import Dem
 from .errors import ParameterError
+from .jit import njit, prange
 from .planets import EARTH, Planet, resolve_planet
 
 #: [m] closest sample to the camera: the near field matters on slopes
@@ -147,7 +147,7 @@ def packed_pyramid(dem: Dem):
     return p
 
 
-@numba.njit(cache=True, fastmath=False, nogil=True)
+@njit(cache=True, fastmath=False, nogil=True)
 def _bilinear(z, u, v):
     ny, nx = z.shape
     j = min(int(math.floor(u)), nx - 2)
@@ -158,7 +158,7 @@ def _bilinear(z, u, v):
             + z[i + 1, j] * (1 - fu) * fv + z[i + 1, j + 1] * fu * fv)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end):
     """Where a ray stands in the max pyramid: the level-0 cell (i, j) at distance ``t`` [m], its
     block (bi, bj) at ``level``, and the distance [m] at which the ray leaves that block (> t).
@@ -194,7 +194,7 @@ def pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end):
     return i, j, bi, bj, t_exit
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, tol, t_min, t_seed):
     """Max tangent of the elevation angle along one ray (index space; t in metres).
 
@@ -269,13 +269,13 @@ def _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, t
     return best, t_best
 
 
-@numba.njit(cache=True, parallel=True, nogil=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, caz, max_d,
                   curv, tol, t_min, out_el, out_len, out_ground, out_dist, cam_z):
     ny, nx = z.shape
     n = xs.shape[0]
     nb = saz.shape[0]
-    for k in numba.prange(n):
+    for k in prange(n):
         u0 = (xs[k] - x0) / dx
         v0 = (y0 - ys[k]) / dy
         zg = _bilinear(z, u0, v0)

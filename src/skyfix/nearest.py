@@ -12,8 +12,9 @@ without scipy (143 MB of disk); the tests compare the two.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from .jit import njit
 
 
 def nearest_valid(valid, row_spacing: float = 1.0, col_spacing: float = 1.0):
@@ -35,7 +36,7 @@ def nearest_valid(valid, row_spacing: float = 1.0, col_spacing: float = 1.0):
     return dist2, rows, cols
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _feature_transform(valid, sy, sx, dist2, rows, cols):
     h, w = valid.shape
     f = np.empty((h, w), np.float64)  # squared distance to the nearest valid cell of the column

@@ -17,8 +17,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import numba
 import numpy as np
+
+from ..jit import njit
 
 #: the codec chain (zarr v3 names, in encoding order) this module decodes, with or without a
 #: transpose first
@@ -77,7 +78,7 @@ def chunk_reader(array):
     return read
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def unshuffle_undelta(raw, out):
     """Undo a 2-byte shuffle (all low bytes, then all high bytes) and a delta filter (int16
     cumulative sum, wrapping as numpy's does) in one pass: ``raw`` uint8 (2 n,) -> ``out`` int16 (n,)."""

@@ -18,9 +18,9 @@ full resolution by a narrow band DP on the vertical intensity step (:mod:`.refin
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from ..jit import njit
 from .image import (downscale, downscale_factor, downscale_rgb, downscale_valid, fill_invalid,
                     resample_to, to_float_gray, trusted)
 from .options import DpOptions
@@ -85,7 +85,7 @@ def _cloud_like(tex, lo, rgb_s, valid_s, min_llr, sure_llr=2.0, min_sure=100, sk
     return valid_s & (tex > 0) & (lo > min_llr) & brighter
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _median_above(d, valid, rows, cols, n_rows):
     """Median of ``d`` over the valid pixels of the ``n_rows`` rows above ``rows[i]`` in column
     ``cols[i]``; 0 where there are none."""
@@ -103,7 +103,7 @@ def _median_above(d, valid, rows, cols, n_rows):
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _valid_column_mean(d, valid):
     """Mean of ``d`` over each column's valid pixels (0 where none)."""
     h, w = d.shape

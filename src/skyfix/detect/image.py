@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from ..errors import ParameterError
+from ..jit import njit
 from .options import MIN_HEIGHT_PX, MIN_WIDTH_PX
 
 
@@ -108,7 +108,7 @@ def to_float_gray(img):
     return g
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _mirror_fill_columns(arr, valid, out, done):
     """Above the first and below the last valid pixel of a column, mirror the column about that
     pixel (at most 4 rows deep, then repeat, so no-data is not filled with distant content): a mirrored edge has the same gradient as the data, so the first valid row does not look

@@ -9,14 +9,15 @@ also has an explicit *no-skyline* state; switching between it and the skyline co
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from ..jit import njit
 
 
 BIG = 1e18
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def solve_path(enter_cost, vert_cost, grad, none_cost, window, jump_cost, w_diff, switch_cost):
     """Exact minimum-cost path over a column-staged graph with a no-skyline state.
 
@@ -131,7 +132,7 @@ def solve_path(enter_cost, vert_cost, grad, none_cost, window, jump_cost, w_diff
     return top, bottom
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def column_prefix(d, valid):
     """P[r, c] = sum of d[0:r, c] over valid pixels; shape (H + 1, W)."""
     H, W = d.shape

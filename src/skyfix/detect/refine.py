@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from ..jit import njit
 from .path import BIG, solve_path
 
 
@@ -100,7 +100,7 @@ def refine_full(gray, valid, top_full, bottom_full, f, refine_band: float):
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _edge_crossing(gray, valid, rows):
     """Move each column's row (in place) to where the grey level crosses halfway between the sky
     just above and the ground just below: the edge's position in pixel-centre coordinates.

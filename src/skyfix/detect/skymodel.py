@@ -23,10 +23,10 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from ..errors import ParameterError
+from ..jit import njit, num_threads, prange
 from ..optional import require
 from .image import (as_gray_rgb, downscale, downscale_factor, downscale_rgb, downscale_valid,
                     fill_invalid, to_float_gray, trusted, valid_mask)
@@ -46,7 +46,7 @@ DEFAULT_GREY_MODEL = Path(__file__).resolve().parents[1] / "models" / "sky_hgb_g
 SKY_RGB = (34, 56, 19)  # MarsScapes label colour of sky
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _column_context(tex, valid, gray):
     """Per pixel: rows below the column's first valid pixel, mean texture of the valid pixels
     above it (itself excluded; 0 at the top), and the mean grey of the first 5 valid rows."""
@@ -120,7 +120,7 @@ def sky_features(gray_s, rgb_s, valid_s):
     return np.nan_to_num(X, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _walk_block(X, feat, thr, child, value, roots, depth, out, i0, m):
     """Add the forest's raw score of rows ``i0 .. i0 + m - 1`` of X to ``out``.
 
@@ -145,7 +145,7 @@ def _walk_block(X, feat, thr, child, value, roots, depth, out, i0, m):
 _BLOCK = 1024
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _ensemble_serial(X, feat, thr, child, value, roots, depth, baseline):
     """Raw (log-odds) score of each row of X under a forest stored as arrays, on one thread."""
     n = X.shape[0]
@@ -156,12 +156,12 @@ def _ensemble_serial(X, feat, thr, child, value, roots, depth, baseline):
     return out
 
 
-@numba.njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True)
 def _ensemble_parallel(X, feat, thr, child, value, roots, depth, baseline):
     """:func:`_ensemble_serial` with the blocks shared among numba's threads."""
     n = X.shape[0]
     out = np.full(n, baseline)
-    for b in numba.prange((n + _BLOCK - 1) // _BLOCK):
+    for b in prange((n + _BLOCK - 1) // _BLOCK):
         i0 = b * _BLOCK
         _walk_block(X, feat, thr, child, value, roots, depth, out, i0, min(n, i0 + _BLOCK) - i0)
     return out
@@ -217,7 +217,7 @@ class SkyModel:
         X = np.ascontiguousarray(X, dtype=np.float32).reshape(-1, N_FEATURES)
         f, t, child, roots, depth = self._tables()
         # a parallel loop on one thread costs 25 % (the board's single core)
-        kernel = _ensemble_parallel if numba.get_num_threads() > 1 else _ensemble_serial
+        kernel = _ensemble_parallel if num_threads() > 1 else _ensemble_serial
         return kernel(X, f, t, child, self.value, roots, depth, self.baseline)
 
     def _tables(self):

@@ -8,10 +8,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from ..errors import ParameterError
+from ..jit import njit
 
 
 @dataclass
@@ -149,7 +149,7 @@ def score_dense(p: np.ndarray, dq: DenseQuery, all_shifts: bool = False):
     return _finish_scores(s, corr, dq.sq, dq.u_q, dq.m_obs, all_shifts)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _sum_squares(s, corr, sq, u_q, m_obs):
     """``s`` (N, n) float32 in place: ``max(s + sq - 2 corr[:, 0] - sum_i (corr[:, i] -
     u_q[i - 1])^2, 0) / m_obs``, in float32 and in the order NumPy's whole-array passes took
