@@ -67,7 +67,7 @@ def _cgroup(limit_mb: int):
     return None, "not enforced: no memory cgroup controller on this machine"
 
 
-def _run(cmd, cgroup=None, cpu=0):
+def _run(cmd, cgroup=None, cpu=0, env=None):
     """Run ``cmd`` pinned to ``cpu`` (and inside ``cgroup``); sample its memory. Returns a dict."""
     def enter():
         if cgroup is not None:
@@ -76,7 +76,7 @@ def _run(cmd, cgroup=None, cpu=0):
 
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         preexec_fn=enter)
+                         preexec_fn=enter, env=env)
     rss = anon = 0
     status = Path(f"/proc/{p.pid}/status")
     while p.poll() is None:
@@ -160,7 +160,15 @@ def main(argv=None):
     print(f"memory limit {args.limit_mb} MB: {how}; pinned to CPU {args.cpu}; load average "
           f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}", flush=True)
     skyfix = [args.board_python, "-m", "skyfix.cli.main", "-q"]
-    print(f"board commands run by {args.board_python}", flush=True)
+    env = dict(os.environ)
+    if Path(args.board_python).resolve() != Path(sys.executable).resolve():
+        # another install's Python measures that install's skyfix, not the sources this runs from
+        env.pop("PYTHONPATH", None)
+    aot = subprocess.run([args.board_python, "-c", "from skyfix import jit; print(jit.ahead_of_time())"],
+                         capture_output=True, text=True, env=env).stdout.strip() == "True"
+    print(f"board commands run by {args.board_python}; kernels "
+          f"{'compiled ahead of time (numba not loaded)' if aot else 'by numba JIT (cached)'}",
+          flush=True)
     print(f"{'case':30s} {'command':8s} {'limit':6s} {'wall s':>7s} {'cpu s':>6s} {'RSS MB':>7s} "
           f"{'anon MB':>7s} {'killed':>6s} {'pos m':>7s} {'head deg':>8s} {'conf':>5s}")
     ratios = []
@@ -183,7 +191,7 @@ def main(argv=None):
                     if lim == "limit" and cg is None:
                         continue
                     c0 = _children_cpu()
-                    r = _run(cmd, cg if lim == "limit" else None, args.cpu)
+                    r = _run(cmd, cg if lim == "limit" else None, args.cpu, env)
                     cpu = _children_cpu() - c0
                     walls[lim] = r["wall_s"]
                     pos = head = conf = float("nan")
