@@ -27,6 +27,7 @@ from __future__ import annotations
 import functools
 import importlib.util
 import json
+import logging
 import os
 import sys
 import types
@@ -117,6 +118,16 @@ def accepts(spec, value) -> bool:
     return False
 
 
+def _describe(value) -> str:
+    """A value's type in a few words, for the fallback's warning."""
+    import numpy as np
+
+    if isinstance(value, np.ndarray):
+        layout = "C" if value.flags.c_contiguous else "F" if value.flags.f_contiguous else "strided"
+        return f"{value.dtype.name}[{value.ndim}d, {layout}{'' if value.flags.writeable else ', read-only'}]"
+    return type(value).__name__
+
+
 class Kernel:
     """A kernel with ahead-of-time exports: calls the export whose recorded argument types fit,
     else numba's JIT build of the same function (numba imported then, not before)."""
@@ -132,6 +143,12 @@ class Kernel:
         for fn, specs in self._exports:
             if len(specs) == len(args) and all(accepts(s, a) for s, a in zip(specs, args)):
                 return fn(*args)
+        if self._jit is None:
+            # said once per kernel: loading numba costs the memory the build was made to save
+            logging.getLogger("skyfix.jit").warning(
+                "%s.%s: argument types the ahead-of-time build does not cover; compiling it "
+                "with numba (%s)", self.py_func.__module__, self.py_func.__qualname__,
+                ", ".join(_describe(a) for a in args))
         return self.jit()(*args)
 
     def jit(self):
