@@ -135,6 +135,13 @@ def test_board_commands_from_the_build_match_the_jit_without_numba(built, tmp_pa
                       "--prior-y", str(y - 2), "--prior-radius-m", "10", "-o",
                       str(tmp_path / f"{name}.fix.json"), "--overwrite")
         assert loaded == ([] if name == "aot" else ["llvmlite", "numba"])
+        loaded = _run(env, "heading", str(acq), "--dem", str(dem_path), "--x", str(x + 6),
+                      "--y", str(y - 4), "--heading-prior-deg", "44", "--prior-north", "grid",
+                      "-o", str(tmp_path / f"{name}.heading.json"), "--overwrite")
+        assert loaded == ([] if name == "aot" else ["llvmlite", "numba"])
+    heads = [json.loads((tmp_path / f"{n}.heading.json").read_text()) for n in ("aot", "jit")]
+    assert heads[0]["heading_deg"] == heads[1]["heading_deg"]
+    assert heads[0]["confidence"] == heads[1]["confidence"]
     sky = [json.loads((tmp_path / f"{n}.sky.json").read_text())["rows"] for n in ("aot", "jit")]
     assert sky[0] == sky[1]
     fix = [json.loads((tmp_path / f"{n}.fix.json").read_text()) for n in ("aot", "jit")]
