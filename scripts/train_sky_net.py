@@ -39,14 +39,17 @@ on two shared cores (torch 2.13 CPU). The network (:class:`SkyNetModel`): a U-Ne
 channels with two dilated convolutions (8, 16) at 1/16 scale, 0.3 M parameters, 1.2 MB as ONNX
 per member.
 
-A direction measured, not shipped (2026-11-26, one fold, one seed): fold 0's member retrained
+A direction measured, not shipped (2026-11-26, two folds, one seed): fold 0's member retrained
 with ``--steps 2400 --nosky-boost 4`` and the 72 frames of ``scripts/make_sky_sims.sh`` as the
 simulator renders them now (``--sims`` once per set), scored on fold 0's held-out images with the
 shipped ensemble's calibration, against the shipped member 0 (``NetOptions.member=0``): Mars
 false skyline 10.7 -> 5.5 %, missed 5.8 -> 3.5 %, 0.81 -> 0.73 px; the two no-sky mosaics 34.0
 -> 19.0 % claimed (365_2 16 -> 0.1 %, 463_1 99 -> 87 %); Earth unchanged (0.37 -> 0.41 px); but
-387_1 lost its skyline (0.88 px, 23 % missed -> none found). Longer training, the newer sims and
-the no-sky weight are confounded here; every fold is needed before it can ship.
+387_1 lost its skyline (0.88 px, 23 % missed -> none found). Fold 1 the same way: Mars false
+15.3 -> 12.0 %, missed 9.2 -> 11.2 %, 1.27 -> 0.95 px; its three no-sky mosaics 53.3 -> 42.8 %
+claimed (371_2 33 -> 0 %, 388_2 97 -> 97 %, 465_2 0 -> 4 %); Earth 1.49 -> 1.01 px, missed 0.4 ->
+1.2 %. Longer training, the newer sims and the no-sky weight are confounded here; every fold is
+needed before it can ship.
 """
 
 from __future__ import annotations
