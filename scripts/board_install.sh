@@ -60,8 +60,7 @@ size "without the libraries' test suites"
 # Not stripped: the wheels' shared libraries are patched by auditwheel, and stripping them breaks
 # their loading (numpy's OpenBLAS: "ELF load command address/offset not page-aligned").
 
-# Everything the board commands load must still load (and numba compiles nothing here: its
-# kernels are cached on the first run, next to the sources or under NUMBA_CACHE_DIR).
+# Everything the board commands load must still load, and their kernels come from the build.
 "$DIR/bin/python" - <<'PY'
 import cv2, rasterio, pyproj, zarr, numcodecs, numpy
 import skyfix.cli.main, skyfix.pose, skyfix.detect, skyfix.profile, skyfix.database

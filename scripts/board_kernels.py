@@ -29,9 +29,6 @@ import tempfile
 import time
 from pathlib import Path
 
-PACKAGE_TYPES = Path(__file__).resolve().parents[1] / "src" / "skyfix" / "board_kernels.json"
-
-
 # --- numba types <-> JSON ---------------------------------------------------------------------
 
 def encode(t):

@@ -10,7 +10,7 @@ process's resident memory once the first cached kernel loads, and starting LLVM'
 generator costs 0.23 s of every run (docs/board-memory.md).
 
 The ahead-of-time build covers the argument types recorded by ``scripts/board_kernels.py
---record`` (the board commands on the benchmark's acquisitions; ``skyfix/board_kernels.json``).
+record`` (the board commands on the benchmark's acquisitions; ``skyfix/board_kernels.json``).
 A call with other types (a dtype, an array layout, a writeable flag the record never saw) is
 compiled by numba's JIT as everywhere else, so the answer never depends on the build: the
 exported machine code is the same compilation of the same source. pycc's exports check nothing
@@ -29,9 +29,10 @@ import importlib.util
 import json
 import logging
 import os
-import sys
 import types
 from pathlib import Path
+
+import numpy as np
 
 #: the extension module's name; its signature table is ``MODULE + ".json"`` beside it
 MODULE = "_board_kernels"
@@ -75,8 +76,9 @@ def ahead_of_time() -> bool:
 
 
 def num_threads() -> int:
-    """numba's thread count, or 1 where the kernels run ahead of time (one thread)."""
-    if _load_aot() is not None and "numba" not in sys.modules:
+    """numba's thread count, or 1 where the kernels run ahead of time (one thread): the serial
+    kernels are the ones built, even after a fallback has loaded numba."""
+    if _load_aot() is not None:
         return 1
     import numba
 
@@ -91,8 +93,6 @@ def accepts(spec, value) -> bool:
     kind = spec[0]
     if kind == "array":
         _, dtype, ndim, layout, readonly = spec
-        import numpy as np
-
         if type(value) is not np.ndarray or value.ndim != ndim or value.dtype.name != dtype:
             return False
         if not value.dtype.isnative or not value.flags.aligned:
@@ -112,19 +112,16 @@ def accepts(spec, value) -> bool:
             return name == "int64" and -(1 << 63) <= value < (1 << 63)
         if isinstance(value, float):
             return name == "float64"
-        import numpy as np
-
         return isinstance(value, np.generic) and value.dtype.name == name
     return False
 
 
 def _describe(value) -> str:
     """A value's type in a few words, for the fallback's warning."""
-    import numpy as np
-
     if isinstance(value, np.ndarray):
         layout = "C" if value.flags.c_contiguous else "F" if value.flags.f_contiguous else "strided"
-        return f"{value.dtype.name}[{value.ndim}d, {layout}{'' if value.flags.writeable else ', read-only'}]"
+        ro = "" if value.flags.writeable else ", read-only"
+        return f"{value.dtype.name}[{value.ndim}d, {layout}{ro}]"
     return type(value).__name__
 
 
