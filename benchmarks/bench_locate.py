@@ -39,7 +39,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 MATCH_CHILD = r"""
-import json, resource, sys, time
+import json, re, sys, time
 t_start = time.perf_counter()
 from skyfix.database import open_database
 from skyfix.formats import read_profile_json
@@ -51,7 +51,9 @@ res = match_database(db, prof.elevation_deg, PRESETS[sys.argv[3]])
 c = res.candidates[0]
 print(json.dumps({"search_s": time.perf_counter() - t0, "search_cpu_s": time.process_time() - c0,
                   "process_s": time.perf_counter() - t_start,
-                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  # VmHWM, not ru_maxrss: the latter keeps the parent's peak across fork and exec
+                  "peak_rss_mb": int(re.search(r"VmHWM:\s+(\d+)",
+                                               open("/proc/self/status").read()).group(1)) / 1024,
                   "positions": res.n_positions, "scored_exact": res.n_scored_exact,
                   "timing": res.timing, "row": c.row, "col": c.col, "heading_deg": c.heading_deg}))
 """

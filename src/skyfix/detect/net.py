@@ -118,13 +118,9 @@ class SkyNet:
     and averaged) and what was stored with it (``meta``: channels, members, calibration)."""
 
     def __init__(self, path):
-        import cv2
-
         path = Path(path)
-        try:
-            self.net = cv2.dnn.readNetFromONNX(str(path))
-        except cv2.error as e:
-            raise ParameterError(f"cannot read the sky network {path}: {str(e).strip()[-200:]}") from None
+        self.path = path
+        self.net = self._read()
         meta_path = path.with_suffix(".json")
         self.meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
         if int(self.meta.get("channels", CHANNELS)) != CHANNELS:
@@ -133,6 +129,14 @@ class SkyNet:
         cal = self.meta.get("calibration") or {}
         self.cal_x = np.asarray(cal.get("raw", []), float)
         self.cal_y = np.asarray(cal.get("p_within_3px", []), float)
+
+    def _read(self):
+        import cv2
+
+        try:
+            return cv2.dnn.readNetFromONNX(str(self.path))
+        except cv2.error as e:
+            raise ParameterError(f"cannot read the sky network {self.path}: {str(e).strip()[-200:]}") from None
 
     def _run(self, x, member=-1):
         c, h, w = x.shape
@@ -145,6 +149,8 @@ class SkyNet:
         if wp > w:
             t[0, :, :, w:] = t[0, :, :, w - 1:w]
             t[0, 3, :, w:] = 0.0
+        if self.net is None:
+            self.net = self._read()
         self.net.setInput(t)
         # an ensemble stacks its members' log-odds as channels: their mean is the answer
         out = self.net.forward()[0, :, :h, :w]
@@ -160,6 +166,9 @@ class SkyNet:
         lo = self._run(x, member)
         if flip:
             lo = 0.5 * (lo + self._run(np.ascontiguousarray(x[:, :, ::-1]), member)[:, ::-1])
+        # OpenCV keeps every layer's buffers while the net lives (~80 MB at 0.3 MP), and the
+        # path and the refinement come after: dropped here, read again (~10 ms) for the next image
+        self.net = None
         if not np.isfinite(lo).all():
             raise ParameterError("the sky network gave non-finite output: its model file is damaged")
         return lo.astype(np.float64)
