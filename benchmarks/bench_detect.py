@@ -4,18 +4,23 @@ Prints per image and overall: mean absolute row error [px] over columns where tr
 both have a skyline, share within 3 px and 10 px, false-skyline and missed-skyline rates over
 valid columns, and milliseconds per megapixel (wall time on this machine: noisy when shared);
 per set, how the detected columns fare by confidence bin (share within 3 px, share false); then
-each dev image resampled to 4 MP, timed against the target of 1 s per 4-MP image.
+each dev image resampled to 4 MP, timed against the target of 1 s per 4-MP image, and the peak
+RSS of a process detecting one 4-MP image (``--board-python``: also with a board install's
+interpreter, the footprint a rover has) against the 256 MB budget.
 
     PYTHONPATH=src python benchmarks/bench_detect.py [--methods dp,bayes] [--data DIR]
         [--only NAME,...] [--set KEY=VALUE ...] [--cv [--cv-sim SIMS]] [--sim DIR]
-        [--degrade grey|jpeg:Q|blur:S|denoise|resample:F]
+        [--degrade grey|jpeg:Q|blur:S|denoise|resample:F] [--board-python PATH]
 
-``--cv`` adds a cross-validated table for ``dp``: the images are dealt into ``--cv-folds`` folds
-by site (a Mars mosaic by its sol, so near-duplicate mosaics of one site never sit on both sides;
-an Earth photo by itself; the folds of ``scripts/train_sky_net.py``), the sky classifier is
-retrained (same recipe as ``scripts/train_sky_model.py``) on the labelled mosaics of the other
-folds and each image is detected with the model of its own fold. The pooled line also gives the
-share of columns claimed on images whose truth holds no skyline at all (the no-sky mosaics).
+``--cv`` adds cross-validated tables for ``dp`` and ``fuse`` (whichever ``--methods`` names): the
+images are dealt into ``--cv-folds`` folds by site (a Mars mosaic by its sol, so near-duplicate
+mosaics of one site never sit on both sides; an Earth photo by itself; the folds of
+``scripts/train_sky_net.py``), the sky classifier is retrained (same recipe as
+``scripts/train_sky_model.py``) on the labelled mosaics of the other folds and each image is
+detected with the model of its own fold. The pooled line also gives the share of columns
+claimed on images whose truth holds no skyline at all (the no-sky mosaics).
+``fuse`` also runs, on each image, the member of the shipped network's ensemble that held that
+image's fold out (the same folds: the network's members were trained by them).
 
 ``--cv-net DIR`` scores ``net`` cross-validated: DIR holds ``fold_K.onnx`` (+ ``.json``) from
 ``scripts/train_sky_net.py --folds N --fold K``; each image is detected by the fold model that
@@ -31,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -64,9 +70,11 @@ def _fmt(name, s, ms_per_mp):
 HEADER = f"{'image':>10s} {'MAE px':>8s} {'<=3px%':>7s} {'<=10px%':>7s} {'false%':>7s} {'miss%':>7s} {'ms/MP':>8s}"
 
 
-def run_set(pairs, method, out=sys.stdout, per_image=True, models=None, title="", **options):
+def run_set(pairs, method, out=sys.stdout, per_image=True, models=None, title="", image_options=None,
+            **options):
     """pairs: iterable of (name, image array, truth Skyline); models: optional {name: SkyModel}
-    (held-out models for cross-validation). Returns (pooled score, ms/MP)."""
+    (held-out models for cross-validation); image_options: optional {name: {option: value}} on
+    top of ``options`` (the held-out network member of ``fuse``). Returns (pooled score, ms/MP)."""
     scores, t_tot, mp_tot, cols, no_sky = [], 0.0, 0.0, [], []
     print(f"-- method {method} {title}", file=out)
     print(HEADER, file=out)
@@ -74,6 +82,7 @@ def run_set(pairs, method, out=sys.stdout, per_image=True, models=None, title=""
         kw = dict(options)
         if models is not None:
             kw["model"] = models[name]
+        kw.update((image_options or {}).get(name, {}))
         t0 = time.perf_counter()
         pred = detect_skyline(img, method=method, **kw)
         dt = time.perf_counter() - t0
@@ -143,10 +152,12 @@ def time_at_4mp(pairs, method, out=sys.stdout, **options):
     return med
 
 
-def peak_rss_4mp(img, out=sys.stdout, method="net"):
+def peak_rss_4mp(img, out=sys.stdout, method="net", python=None):
     """Peak RSS [MB] of a fresh process that imports skyfix, reads one 4-MP image from a PNG and
     detects its skyline with ``method`` (the whole process: interpreter, imports, image, detector);
-    also the peak before detecting (imports and the image)."""
+    also the peak before detecting (imports and the image). ``python``: the interpreter to run it
+    with (default this one; a board install's, from ``scripts/board_install.sh``, measures the
+    rover's footprint: no JIT compiler loaded, no scikit-learn)."""
     import subprocess
     import tempfile
 
@@ -157,17 +168,31 @@ def peak_rss_4mp(img, out=sys.stdout, method="net"):
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "big.png"
         cv2.imwrite(str(path), big[..., ::-1] if big.ndim == 3 else big)
-        code = ("import resource, sys, cv2; from skyfix.detect import detect_skyline; "
+        # the process's own high-water mark (VmHWM): getrusage's ru_maxrss carries the parent's
+        # peak across fork and exec, and this benchmark's parent holds every dev image; the heap
+        # set up as `skyfix detect` sets it (skyfix.cli.heap)
+        code = ("import re, sys; from skyfix.cli.heap import board_heap; board_heap(); "
+                "import cv2; from skyfix.detect import detect_skyline; "
+                "hwm = lambda: int(re.search(r'VmHWM:\\s+(\\d+)', "
+                "open('/proc/self/status').read()).group(1)) / 1024; "
                 "im = cv2.cvtColor(cv2.imread(sys.argv[1]), cv2.COLOR_BGR2RGB); "
-                "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024); "
+                "print(hwm()); "
                 f"detect_skyline(im, method='{method}'); "
-                "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
-        r = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True)
+                "print(hwm())")
+        python = python or sys.executable
+        env = dict(os.environ)
+        if Path(python).resolve() != Path(sys.executable).resolve():
+            env.pop("PYTHONPATH", None)  # the other install's own skyfix, not this checkout's
+        # one warm-up call first: the figure is a detection's, not numba's first compilation
+        # (a JIT install compiles once, then reads its cache)
+        subprocess.run([python, "-c", code, str(path)], capture_output=True, text=True, env=env)
+        r = subprocess.run([python, "-c", code, str(path)], capture_output=True, text=True, env=env)
     if r.returncode:
         print(f"   peak RSS measurement failed: {r.stderr.strip()[-300:]}", file=out)
         return None
     before, mb = (float(v) for v in r.stdout.strip().splitlines()[-2:])
-    print(f"   {method}: peak RSS of a process detecting one {big.shape[1]} x {big.shape[0]} image: "
+    who = "" if python == sys.executable else f" ({python})"
+    print(f"   {method}{who}: peak RSS of a process detecting one {big.shape[1]} x {big.shape[0]} image: "
           f"{mb:.0f} MB ({before:.0f} MB with the imports and the image, before detecting; "
           f"target 256 MB: ratio {mb / 256:.2f})", file=out, flush=True)
     return mb
@@ -188,6 +213,14 @@ def sim_pairs(set_dir):
         truth = vis if vis.exists() else ter
         if truth.exists():
             yield f"{png.parent.name}/{png.stem}", _read_rgb(png), read_skyline_json(truth)
+
+
+def held_out_members():
+    """{image name: index of the shipped network's ensemble member that never saw it}."""
+    from skyfix.detect.net import load_sky_net
+
+    by_member = load_sky_net().meta.get("held_out_by_member") or {}
+    return {n: k for k, (_, names) in enumerate(sorted(by_member.items())) for n in names}
 
 
 def site_fold_models(folder, names, n_folds=5, sim_dirs=(), sim_max_frames=10, grey=False):
@@ -267,7 +300,7 @@ def main(argv=None):
                     help="labelled image folder (repeatable; default the Mars dev set)")
     ap.add_argument("--only", default="", help="comma-separated image names")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a detector option (dp only), e.g. --set w_region=0.1")
+                    help="override a detector option (dp and fuse only), e.g. --set w_region=0.1")
     ap.add_argument("--cv", action="store_true",
                     help="also a table cross-validated by site (retrains the sky model per fold)")
     ap.add_argument("--cv-folds", type=int, default=5, help="folds for --cv (default 5)")
@@ -279,6 +312,9 @@ def main(argv=None):
                     help="score net with held-out fold models (see the module docstring)")
     ap.add_argument("--write-calibration", default="", metavar="MODEL.json",
                     help="with --cv-net: store the confidence calibration in this model metadata")
+    ap.add_argument("--board-python", default="", metavar="PATH",
+                    help="also measure the 4-MP peak RSS with this interpreter (a board install's, "
+                         "scripts/board_install.sh DIR: DIR/bin/python)")
     ap.add_argument("--degrade", default="", metavar="grey|jpeg:Q|blur:S|denoise|resample:F",
                     help="degrade every image first (robustness to compression and smoothing)")
     args = ap.parse_args(argv)
@@ -307,18 +343,31 @@ def main(argv=None):
     detect_skyline(np.full((40, 40), 128, np.uint8))
     if not args.no_all:
         for m in args.methods.split(","):
-            run_set(pairs, m, title="(shipped model)", **(options if m == "dp" else {}))
-            time_at_4mp(pairs, m, **(options if m == "dp" else {}))
+            run_set(pairs, m, title="(shipped model)", **(options if m in ("dp", "fuse") else {}))
+            time_at_4mp(pairs, m, **(options if m in ("dp", "fuse") else {}))
         for m in args.methods.split(","):
             peak_rss_4mp(pairs[0][1], method=m)
+            if args.board_python:
+                peak_rss_4mp(pairs[0][1], method=m, python=args.board_python)
+    if args.cv and "fuse" in args.methods.split(","):
+        n_members = len(set(held_out_members().values()))
+        if n_members != args.cv_folds:
+            raise SystemExit(f"--cv with fuse needs --cv-folds {n_members}: the shipped network's "
+                             f"members each held out one of {n_members} folds")
     if args.cv:
         sim_dirs = sorted(p for p in Path(args.cv_sim).iterdir() if p.is_dir()) if args.cv_sim else []
         models = site_fold_models(folder, [p[0] for p in pairs], args.cv_folds, sim_dirs,
                                   grey="grey" in args.degrade.split(","))
-        for f in folders:  # one table per set: Mars mosaics and Earth photos fail differently
-            run_set([p for p in pairs if folder_of[p[0]] == f.name], "dp", models=models,
-                    title=f"{f.name} (sky model cross-validated, {args.cv_folds} folds by site)",
-                    **options)
+        for m in [m for m in args.methods.split(",") if m in ("dp", "fuse")] or ["dp"]:
+            # fuse: each image also gets the network member that held its fold out (the shipped
+            # ensemble's folds are these folds: train_sky_net.folds)
+            member = held_out_members() if m == "fuse" else {}
+            for f in folders:  # one table per set: Mars mosaics and Earth photos fail differently
+                title = f"{f.name} (sky model cross-validated, {args.cv_folds} folds by site"
+                title += ", held-out network member)" if m == "fuse" else ")"
+                run_set([p for p in pairs if folder_of[p[0]] == f.name], m, models=models,
+                        title=title, image_options={n: {"net_member": k} for n, k in member.items()},
+                        **options)
     if args.cv_net:
         from cv_net import run_cv_net
 
@@ -330,7 +379,7 @@ def main(argv=None):
                 sims = [(n, degrade(im, args.degrade), t) for n, im, t in sims]
             for m in args.methods.split(","):
                 run_set(sims, m, per_image=False, title=f"(simulated {set_dir.name})",
-                        **(options if m == "dp" else {}))
+                        **(options if m in ("dp", "fuse") else {}))
     else:
         print("simulated sets: pass --sim DIR (DIR/REF, DIR/CLUT, ... written by "
               "skyfix.simulate.simulate_set)")

@@ -1,4 +1,5 @@
-"""Shared fixtures: the reference data folder and tiny synthetic DEMs with known answers."""
+"""Shared fixtures: the reference data folder, tiny synthetic DEMs with known answers and a
+synthetic colour scene with a known skyline."""
 
 from __future__ import annotations
 
@@ -6,8 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from skyfix.dem import Dem
+from skyfix.detect import score_skyline
+from skyfix.formats import Skyline
 
 #: ../shared/data beside the repository (CI has it there too)
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -41,3 +45,29 @@ def tmp_dem_file(tmp_path):
         return write_dem(tmp_path / name, dem)
 
     return make
+
+
+def colour_scene(rows, height=200, *, seed=0, clouds=False):
+    """Blue sky darkening to the horizon over brown gravel below ``rows`` (the first terrain row
+    is ceil(rows)); with ``clouds``, bright soft cumulus in the sky well above the skyline."""
+    rng = np.random.default_rng(seed)
+    W = len(rows)
+    r = np.arange(height)[:, None]
+    terrain = r >= np.asarray(rows)[None, :]
+    sky = np.stack([120 + 0.3 * r, 160 + 0.3 * r, 230 + 0 * r], -1) * np.ones((1, W, 1))
+    if clouds:
+        blob = ndimage.gaussian_filter(rng.normal(0, 1, (height, W)), 6.0)
+        blob = np.clip((blob / blob.std() - 0.6) * 2.0, 0, 1)
+        blob *= (r < np.asarray(rows)[None, :] - 25)  # clouds stay 25 px above the ridge
+        sky = (1 - blob[..., None]) * sky + blob[..., None] * np.array([245.0, 245, 248])
+    tex = ndimage.gaussian_filter(rng.normal(0, 1, (height, W)), 1.2)
+    tex = 35 * tex / tex.std()
+    ground = np.stack([130 + tex, 100 + tex, 70 + tex], -1)
+    img = np.where(terrain[..., None], ground, sky) + rng.normal(0, 2, (height, W, 3))
+    first = np.ceil(np.asarray(rows, float))
+    return np.clip(img, 1, 255).astype(np.uint8), np.where(first < height, first, np.nan)
+
+
+def score_rows(sk, truth):
+    """score_skyline of a detection against truth rows (one per column, NaN = no skyline)."""
+    return score_skyline(sk, Skyline(rows=truth, width=truth.size, height=sk.height))

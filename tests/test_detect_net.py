@@ -5,46 +5,21 @@ clear error or a documented conversion."""
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
-from skyfix.detect import NetOptions, detect_skyline, score_skyline
+from skyfix.detect import detect_skyline
 from skyfix.detect.net import DEFAULT_NET, load_sky_net, net_input
 from skyfix.errors import ParameterError
-from skyfix.formats import Skyline, read_skyline_json
+from skyfix.formats import read_skyline_json
+
+from conftest import colour_scene, score_rows
 
 DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "marsscapes-dev"
-
-
-def colour_scene(rows, height=200, *, seed=0, clouds=False):
-    """Blue sky darkening to the horizon over brown gravel below ``rows`` (the first terrain row
-    is ceil(rows)); with ``clouds``, bright soft cumulus in the sky well above the skyline."""
-    rng = np.random.default_rng(seed)
-    W = len(rows)
-    r = np.arange(height)[:, None]
-    terrain = r >= np.asarray(rows)[None, :]
-    sky = np.stack([120 + 0.3 * r, 160 + 0.3 * r, 230 + 0 * r], -1) * np.ones((1, W, 1))
-    if clouds:
-        blob = ndimage.gaussian_filter(rng.normal(0, 1, (height, W)), 6.0)
-        blob = np.clip((blob / blob.std() - 0.6) * 2.0, 0, 1)
-        blob *= (r < np.asarray(rows)[None, :] - 25)  # clouds stay 25 px above the ridge
-        sky = (1 - blob[..., None]) * sky + blob[..., None] * np.array([245.0, 245, 248])
-    tex = ndimage.gaussian_filter(rng.normal(0, 1, (height, W)), 1.2)
-    tex = 35 * tex / tex.std()
-    ground = np.stack([130 + tex, 100 + tex, 70 + tex], -1)
-    img = np.where(terrain[..., None], ground, sky) + rng.normal(0, 2, (height, W, 3))
-    first = np.ceil(np.asarray(rows, float))
-    return np.clip(img, 1, 255).astype(np.uint8), np.where(first < height, first, np.nan)
-
-
-def _score(sk, truth):
-    return score_skyline(sk, Skyline(rows=truth, width=truth.size, height=sk.height))
 
 
 def test_the_shipped_network_loads_from_the_installed_package():
@@ -70,7 +45,7 @@ def test_net_runs_without_training_dependencies():
 def test_a_known_skyline_is_found():
     c = np.arange(420)
     img, truth = colour_scene(80 + 25 * np.sin(c / 40.0))
-    s = _score(detect_skyline(img, method="net"), truth)
+    s = score_rows(detect_skyline(img, method="net"), truth)
     assert s["missed_rate"] < 0.02 and s["mean_abs_err_px"] < 1.5 and s["within_3px"] > 0.95
 
 
@@ -78,7 +53,7 @@ def test_clouds_above_a_ridge_stay_out_of_the_skyline():
     c = np.arange(420)
     rows = 120 + 15 * np.sin(c / 35.0)
     img, truth = colour_scene(rows, height=240, seed=3, clouds=True)
-    s = _score(detect_skyline(img, method="net"), truth)
+    s = score_rows(detect_skyline(img, method="net"), truth)
     assert s["missed_rate"] < 0.05 and s["within_3px"] > 0.9
 
 

@@ -91,7 +91,9 @@ def plot_skyline(path, img, skyline):
 @click.option("--mask", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Mask image of the same size: non-zero where the image holds data.")
 @click.option("--method", type=click.Choice(METHODS), default=DEFAULT_METHOD, show_default=True,
-              help="dp: dense-graph dynamic programming; bayes: iterative sky/ground likelihoods.")
+              help="dp: dense-graph dynamic programming; fuse: dp with the learned sky network's "
+                   "evidence (best on real photographs); net: the network alone; bayes: iterative "
+                   "sky/ground likelihoods.")
 @click.option("-o", "--out", "--output", "output", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the skyline JSON here (default: stdout).")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), default=None,

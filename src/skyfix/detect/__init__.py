@@ -12,12 +12,18 @@ as one exact minimum-cost path over the columns with a per-column *no-skyline* s
     The source study's dense multi-stage graph (gradient, Canny, height, gradient difference)
     plus a region term: texture (:mod:`.texture`) and a small learned pixel classifier
     (:mod:`.skymodel`), with a cloud rule and run hysteresis (:mod:`.runs`).
+``net`` (:mod:`.net`)
+    A small fully-convolutional sky/terrain network (ONNX through OpenCV's dnn; trained by
+    ``scripts/train_sky_net.py``) feeding the same exact path, with a calibrated confidence.
+``fuse`` (``dp`` with :attr:`DpOptions.w_net`)
+    ``dp`` whose region term also holds the network's log-odds: the network's wide context
+    against clouds, lakes and haze, ``dp``'s edges for the row. Best on real photographs.
 ``bayes`` (:mod:`.bayes`)
     The NASA Ames sky/ground segmentation by column transitions, re-learned iteratively.
 
 Files: :mod:`.skyline` (:func:`detect_skyline`, the entry point), :mod:`.options` (options,
 presets, checks), :mod:`.image` (validity, filling, downscaling shared by all), :mod:`.path`,
-:mod:`.refine`, :mod:`.runs`, :mod:`.texture`, :mod:`.skymodel`, :mod:`.dp`, :mod:`.bayes`,
+:mod:`.refine`, :mod:`.runs`, :mod:`.texture`, :mod:`.skymodel`, :mod:`.dp`, :mod:`.net`, :mod:`.bayes`,
 :mod:`.score` (:func:`score_skyline` against a truth, with the metrics of
 ``shared/data/README.md``).
 """

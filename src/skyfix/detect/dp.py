@@ -23,7 +23,7 @@ import numpy as np
 from ..jit import njit
 from .image import (downscale, downscale_factor, downscale_rgb, downscale_valid, fill_invalid,
                     resample_to, to_float_gray, trusted)
-from .options import DpOptions
+from .options import DpOptions, NetOptions
 from .path import BIG, column_prefix, solve_path
 from .refine import refine_full, skyline_allowed
 from .runs import drop_short_runs, drop_unanchored_runs
@@ -64,6 +64,17 @@ def _dp_costs(gray_s, valid_s, opt: DpOptions, d=None):
     # no skyline: the whole column terrain (region 0) or the whole column sky (P[h])
     none = opt.none_cost + opt.w_region * np.minimum(0.0, P[h])
     return enter, vert, G, none, d
+
+
+def _net_region(img, valid, opt: DpOptions, f, shape):
+    """The sky network's evidence as a region term on the working grid (``shape``, downscale
+    factor ``f``): minus its log-odds of sky, clipped to +-``opt.llr_clip`` [nats]."""
+    # imported here: the network (OpenCV's dnn and the ONNX file) loads only when it is asked for
+    from .net import sky_net_log_odds
+
+    lo, _, fn, _ = sky_net_log_odds(img, valid, NetOptions(member=opt.net_member))
+    lo = resample_to(lo, fn, f, shape)
+    return -np.clip(lo, -opt.llr_clip, opt.net_sky_clip).astype(np.float64)
 
 
 def _cloud_like(tex, lo, rgb_s, valid_s, min_llr, sure_llr=2.0, min_sure=100, sky_q=10.0,
@@ -153,6 +164,10 @@ def detect_dp(img, valid, opt: DpOptions, model=None):
                                     min_share=opt.cloud_sure_share)
                 tex = np.where(cloud, 0.0, tex)
             d = opt.w_model * d + tex
+    if opt.w_net > 0:
+        if d is None:
+            d = texture_region(gray_s, valid_s, opt)
+        d = d + opt.w_net * _net_region(img, valid, opt, f, gray_s.shape)
     enter, vert, G, none, d = _dp_costs(gray_s, valid_s, opt, d)
     top, bottom = solve_path(enter, vert, G, none, 1, opt.jump_cost, opt.w_diff, opt.switch_cost)
     h, w = gray_s.shape

@@ -15,7 +15,7 @@ from .options import DEFAULT_METHOD, METHODS, PRESETS, check_options
 
 #: method name -> detector(img, valid, options, model) -> (rows, confidence, column validity);
 #: a new detector enters here and in :data:`skyfix.detect.options.PRESETS`
-DETECTORS = {"dp": detect_dp, "bayes": detect_bayes, "net": detect_net}
+DETECTORS = {"dp": detect_dp, "bayes": detect_bayes, "net": detect_net, "fuse": detect_dp}
 
 
 def detect_skyline(image, *, mask=None, method: str = DEFAULT_METHOD, name: str = "", model=None,
@@ -26,7 +26,7 @@ def detect_skyline(image, *, mask=None, method: str = DEFAULT_METHOD, name: str 
     mask : optional bool H x W, True where the image holds valid data
     method : one of :data:`METHODS` (default :data:`DEFAULT_METHOD`)
     name : image name written into the result
-    model : the method's learned model or a path to one (``dp``, ``bayes``: the sky classifier
+    model : the method's learned model or a path to one (``dp``, ``fuse``, ``bayes``: the sky classifier
         :class:`skyfix.detect.skymodel.SkyModel`; ``net``: :class:`skyfix.detect.net.SkyNet`);
         None = the shipped one
     options : fields of :class:`DpOptions` / :class:`BayesOptions` / :class:`NetOptions` to override
