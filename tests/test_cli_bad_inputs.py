@@ -498,6 +498,16 @@ def test_locate_refuses_a_folder_and_a_profile(tmp_path, dem_file, profile_json,
     assert stub_locate == []
 
 
+def test_a_detector_is_refused_with_a_profile(dem_file, profile_json, stub_locate):
+    """A profile holds no images: a --detector there would be silently ignored."""
+    assert_clean_error(run("locate", "--profile", profile_json(), "--dem", dem_file, "--prior-x", 500,
+                           "--prior-y", 500, "--prior-radius-m", 4, "--detector", "fuse"),
+                       "--detector fuse", "holds none")
+    assert_clean_error(run("heading", "--profile", profile_json(), "--dem", dem_file, "--x", 500,
+                           "--y", 500, "--detector", "net"), "--detector net", "holds none")
+    assert stub_locate == []
+
+
 def test_detect_sizes_are_width_x_height(tmp_path, stub_detect):
     import cv2
 

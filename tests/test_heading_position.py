@@ -46,6 +46,10 @@ def test_heading_from_a_position_20_m_off_beside_near_terrain(tmp_path):
 
     weighted, d = error()
     assert weighted < 0.3 and d["provenance"]["options"]["position_sigma_m"] == 10.0
+    assert d["provenance"]["options"]["detector"] == "dp"
+    # the same frames through the fuse detector: the same heading, and the answer says how
+    fused, d = error("--detector", "fuse")
+    assert fused < 0.3 and d["provenance"]["options"]["detector"] == "fuse"
     alike, _ = error("--position-sigma-m", "0")
     assert alike > 1.0
     r = CliRunner().invoke(cli, base + ["--position-sigma-m", "-5"])

@@ -12,7 +12,7 @@ import click
 
 from ..errors import ParameterError
 from ..progress import stage
-from .options import camera_height, check_point_options, dem_sigma, point_xy
+from .options import camera_height, check_point_options, dem_sigma, detector_option, point_xy
 
 
 def _check_source(acq_dir, profile_path):
@@ -24,11 +24,26 @@ def _check_source(acq_dir, profile_path):
         raise ParameterError("give an acquisition folder or --profile PROFILE.json")
 
 
-def _read_profile(acq_dir, profile_path, frames=None):
-    """Profile from ``--profile`` JSON, else from the acquisition folder; with the attitude prior
-    (pitch, roll) [deg] and the camera height [m] (None when the profile does not say).
-    ``frames``, a list, receives each frame's detected rows
-    (:class:`~skyfix.pose.image_plane.FrameRows`) when the profile comes from frames."""
+def _check_detector(profile_path, detector):
+    if profile_path is not None and detector is not None:
+        raise ParameterError(f"--detector {detector} says how an acquisition's images are detected, "
+                             f"and the profile {profile_path} holds none: give the acquisition "
+                             "folder instead, or drop --detector")
+
+
+def _detector_used(profile_path, detector):
+    """The detection method a result's skylines came from (None: from a --profile)."""
+    from ..detect.options import DEFAULT_METHOD
+
+    return None if profile_path is not None else (detector or DEFAULT_METHOD)
+
+
+def _read_profile(acq_dir, profile_path, frames=None, detector=None):
+    """Profile from ``--profile`` JSON, else from the acquisition folder, its images detected with
+    ``detector`` (a method name; None: the default); with the attitude prior (pitch, roll) [deg]
+    and the camera height [m] (None when the profile does not say). ``frames``, a list, receives
+    each frame's detected rows (:class:`~skyfix.pose.image_plane.FrameRows`) when the profile
+    comes from frames."""
     from ..formats import load_acquisition, read_profile_json
 
     _check_source(acq_dir, profile_path)
@@ -49,11 +64,11 @@ def _read_profile(acq_dir, profile_path, frames=None):
             from ..pose.image_plane import frames_from_acquisition
             from ..profile import detect_frames
 
-            skylines = detect_frames(acq)
+            skylines = detect_frames(acq, detector)
             frames.extend(frames_from_acquisition(acq, skylines))
             prof = acquisition_profile(acq, skylines=skylines)
         else:
-            prof = acquisition_profile(acq)
+            prof = acquisition_profile(acq, detector=detector)
         used = prof.meta.get("frames_used")
         obs = int(np.isfinite(prof.elevation_deg).sum())
         st.result = (f"{used} of {n} images with a skyline, " if used is not None else "") + \
@@ -209,11 +224,13 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
               help="The DEM's height error (rms) [m] against the terrain the camera sees, which "
                    "position_sigma_m (and a narrow view's attitude sigmas) allow for; 0: the DEM "
                    "is the world. The fix itself does not depend on it [default: 2].")
+@detector_option
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
 @click.option("--force", is_flag=True,
               help="Use a --dem other than the one the database was built from (the fix says so).")
 def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lon, prior_lat,
-           prior_radius_m, out, geojson, score_map, plot, preset, dem_sigma_m, overwrite, force):
+           prior_radius_m, out, geojson, score_map, plot, preset, dem_sigma_m, detector, overwrite,
+           force):
     """Find position, heading and attitude from an acquisition (or a profile)."""
     import math
 
@@ -223,6 +240,7 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     # Everything that can be refused is refused before the search (minutes) and before any
     # output is written.
     _check_source(acq_dir, profile_path)
+    _check_detector(profile_path, detector)
     check_point_options(prior_x, prior_y, prior_lon, prior_lat, xname="--prior-x", yname="--prior-y",
                         lonname="--prior-lon", latname="--prior-lat", required=False)
     have_prior = prior_x is not None or prior_lon is not None
@@ -263,7 +281,7 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
             if db is not None else "", f"DEM {dem.shape[1]} x {dem.shape[0]} cells of {dem.cell_m:g} m"
             if dem is not None else ""]))
     frames = []  # the frames' detected rows: a narrow view's attitude is also solved in the image
-    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames)
+    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames, detector)
     if profile_path is not None:
         notes += _check_camera_height(db, db_path, cam_h)
     from ..match import PRESETS
@@ -285,7 +303,8 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
                       dem_path=dem_path, profile=prof,
                       options={"preset": preset, "prior_xy": list(prior) if prior else None,
                                "prior_radius_m": prior_radius_m, "force": force,
-                               "camera_height_m": cam_h, "dem_sigma_m": dem_sigma_m},
+                               "camera_height_m": cam_h, "dem_sigma_m": dem_sigma_m,
+                               "detector": _detector_used(profile_path, detector)},
                       estimated=["x", "y", "heading_deg"] + ([] if dem is None else ["pitch_deg", "roll_deg"]),
                       echoed=[] if dem is not None else ["pitch_deg", "roll_deg"],
                       convergence_deg=fix.meridian_convergence_deg)
@@ -325,11 +344,12 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
               help="The DEM's height error (rms) [m] against the terrain the camera sees, which the "
                    "sigmas of a narrow view (one frame) allow for; 0: the DEM is the world "
                    "[default: 2].")
+@detector_option
 @click.option("-o", "--out", "--output", "out", type=click.Path(dir_okay=False),
               help="Heading JSON (default stdout).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg, prior_north,
-            window_deg, camera_height_m, position_sigma_m, dem_sigma_m, out, overwrite):
+            window_deg, camera_height_m, position_sigma_m, dem_sigma_m, detector, out, overwrite):
     """Find the heading only, from a rough position."""
     import math
 
@@ -339,6 +359,7 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     from ..pose import at_window_edge, estimate_heading
 
     _check_source(acq_dir, profile_path)
+    _check_detector(profile_path, detector)
     if heading_prior_deg is None:  # no prior: the whole circle
         heading_prior_deg, window_deg = 0.0, 180.0
     check_point_options(x, y, lon, lat)
@@ -354,7 +375,7 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     dem_sigma_m = dem_sigma(dem_sigma_m)
     check_outputs(overwrite, ("--output", out, None))
     frames = []  # the frames' detected rows: a narrow view is also solved in the image plane
-    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames)
+    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames, detector)
     dem_path = " + ".join(dem_paths)
     dem = load_dems(list(dem_paths))
     x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
@@ -379,7 +400,8 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
         acq_dir=acq_dir, profile_path=profile_path, dem=dem, dem_path=dem_path, profile=prof,
         options={"heading_prior_deg": heading_prior_deg, "prior_north": prior_north,
                  "window_deg": window_deg, "camera_height_m": h, "dem_sigma_m": dem_sigma_m,
-                 "position_sigma_m": position_sigma_m},
+                 "position_sigma_m": position_sigma_m,
+                 "detector": _detector_used(profile_path, detector)},
         estimated=["heading_deg", "pitch_deg", "roll_deg"], echoed=["x", "y"],
         convergence_deg=hf.meridian_convergence_deg)
     if out is not None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import click
 
+from ..detect.options import DEFAULT_METHOD, METHODS
 from ..errors import ParameterError
 from ..planets import get_planet
 
@@ -65,6 +66,11 @@ max_distance_option = click.option(
 crs_option = click.option(
     "--crs", default=None, help="Metric CRS to reproject a geographic DEM to (default: its UTM zone).")
 overwrite_option = click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
+detector_option = click.option(
+    "--detector", type=click.Choice(METHODS), default=None,
+    help=f"Skyline detection method for the acquisition's images [default: {DEFAULT_METHOD}]; "
+         "fuse (dp with the learned sky network) is the better on real photographs, dp on "
+         "skyfix's own simulated frames; see README, skyline detection.")
 
 
 def check_point_options(x, y, lon, lat, *, xname="--x", yname="--y", lonname="--lon",
