@@ -130,7 +130,11 @@ class DpOptions:
         chose 1 (least share of wrong columns, Mars and Earth averaged); a ``net_sky_clip`` of
         0.4 or 0.75 lost most of the Earth gain. The price is on simulated Mars frames, whose
         smooth rendered ground the network calls sky: COND 2.5 -> 9.6 px (24.8 % missed), and on
-        simulated wide-camera frames (0.17 -> 1.52 px), so ``dp`` stays the default
+        simulated wide-camera frames (0.17 -> 1.52 px), so ``dp`` stays the default. Tried, not
+        taken: ignoring the network's sky evidence where the pixel classifier is sure of terrain
+        (log-odds below -1 or -2 nats; on the dev images the network never calls such pixels
+        sky, on simulated Mars frames 13-17 % of them) won back part of COND (9.6 -> 6.3-6.8 px)
+        and lost part of the Earth gain (1.04 -> 1.7-2.5 px)
     no_data_black : treat (0, 0, 0) pixels as no data
     """
 
