@@ -44,7 +44,7 @@ def _frame_fine(camera, sky: Skyline, pan, tilt, pitch, roll, bins):
     return sample_polyline(az, el, bins)[0]
 
 
-def _pair_shift(fi: np.ndarray, fj: np.ndarray, step: float, search: float, min_overlap: int,
+def pair_shift(fi: np.ndarray, fj: np.ndarray, step: float, search: float, min_overlap: int,
                 clip: float = np.inf):
     """Azimuth shift s [deg] with ``fj(az - s) ~ fi(az)`` over the overlap, and its weight.
 
@@ -60,12 +60,16 @@ def _pair_shift(fi: np.ndarray, fj: np.ndarray, step: float, search: float, min_
     best = (np.inf, 0)
     ks = np.arange(-max_k, max_k + 1)
     costs = np.full(ks.size, np.inf)
+    # only where fi is covered can a sample count: a frame covers an eighth of the circle, so
+    # this is the roll of fj (fj(az - s) at sample p is fj[p - k]) over those samples alone
+    at = np.flatnonzero(np.isfinite(fi))
+    fa = fi[at]
     for m, k in enumerate(ks):
-        g = np.roll(fj, k)
-        ok = np.isfinite(fi) & np.isfinite(g)
+        g = fj[(at - k) % n]
+        ok = np.isfinite(g)
         if ok.sum() < min_overlap:
             continue
-        d = fi[ok] - g[ok]
+        d = fa[ok] - g[ok]
         # no free vertical offset: on a sloping skyline an offset and a shift look alike
         costs[m] = np.mean(np.minimum(np.square(d), clip * clip))
         if costs[m] < best[0]:
@@ -126,7 +130,7 @@ def refine_pans(camera: Camera, skylines: Sequence[Skyline], pans: Sequence[floa
                 ov = np.isfinite(fine[i]) & np.isfinite(fine[j])
                 if ov.sum() < min_overlap:
                     continue
-                r = _pair_shift(fine[i], fine[j], step, search, min_overlap, clip=3 * sig_el)
+                r = pair_shift(fine[i], fine[j], step, search, min_overlap, clip=3 * sig_el)
                 if r is None:
                     continue
                 s, info, resid, nov = r
