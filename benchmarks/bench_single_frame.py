@@ -18,7 +18,6 @@ cannot be detected counts as a miss (the command refuses it with exit 2).
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import time
 from pathlib import Path

@@ -80,7 +80,6 @@ def run_cv_net(pairs, folder: Path, *, write_calibration: str = "", out=sys.stdo
     if missing:
         raise SystemExit(f"no fold model in {folder} held out {', '.join(missing[:5])}"
                          f"{' ...' if len(missing) > 5 else ''}: train every fold first")
-    raw_opt = NetOptions(min_confidence=0.0, min_run=0, anchor_conf=0.0)
     recs = []  # per image: name, fold, truth, rows, raw conf, col validity
     for name, img, truth in pairs:
         model = models[name]

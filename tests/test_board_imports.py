@@ -116,8 +116,6 @@ def test_board_commands_get_one_malloc_arena():
     type would silently leave the 40 MB of per-thread arenas in place."""
     import platform
 
-    from skyfix.cli.heap import one_malloc_arena
-
     libc, _ = platform.libc_ver()
     if libc != "glibc":
         pytest.skip(f"not glibc ({libc or 'unknown C library'}): one_malloc_arena is a no-op")

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -195,7 +192,6 @@ def test_noisy_sky_over_smooth_ground():
 
 
 def test_mask_excludes_region():
-    c = np.arange(240)
     img, truth = synth(np.full(240, 60.0), seed=7)
     mask = np.ones(img.shape[:2], bool)
     mask[:, 100:140] = False

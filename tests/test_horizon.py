@@ -173,8 +173,6 @@ def test_points_on_dem_grid_lines_render_and_match_the_reference():
 def test_skyline_distance_names_the_point_that_makes_the_skyline():
     """The reported distance is where the skyline terrain lies: the DEM's height there, seen from
     the camera with the curvature drop, gives the skyline's elevation (a direct recomputation)."""
-    import math
-
     from skyfix.dem import fractal_dem
     from skyfix.planets import EARTH
 

@@ -20,7 +20,7 @@ from skyfix.camera import Camera, Distortion, camera_from_fov, get_camera, r_wor
 from skyfix.cli.main import cli
 from skyfix.dem import Dem
 from skyfix.errors import DetectionError
-from skyfix.formats import Acquisition, Frame, PanoramaSpec, Skyline, save_acquisition, read_profile_json
+from skyfix.formats import Acquisition, Frame, PanoramaSpec, Skyline, save_acquisition
 from skyfix.horizon import render_horizons
 from skyfix.profile import (
     PanRefinement, acquisition_profile, horizon_rows, panorama_profile, profile_from_skylines,
