@@ -12,7 +12,7 @@ from skyfix.errors import ParameterError
 from skyfix.formats import Skyline, read_skyline_json
 
 
-from conftest import SHARED_DATA
+from conftest import SHARED_DATA, colour_scene, score_rows
 
 DEV = SHARED_DATA / "marsscapes-dev"
 METHODS = ["dp", "bayes"]
@@ -597,3 +597,18 @@ def test_subpixel_row_is_the_edge_position():
     err = sk.rows - edge
     assert np.isfinite(err).mean() > 0.98
     assert abs(np.nanmedian(err)) < 0.1 and np.nanmedian(np.abs(err)) < 0.15
+
+
+@pytest.mark.parametrize("method", ["dp", "fuse", "net", "bayes"])
+def test_non_finite_pixels_of_a_float_image_are_no_data(method):
+    """A float image marking no data with NaN (a mosaic's corner) or holding an infinite pixel
+    block: those pixels are left out, the skyline elsewhere is found (one NaN used to make every
+    column's cost NaN, and no skyline came back at all)."""
+    rows = 60 + 8 * np.sin(np.arange(240) / 25.0)
+    img, truth = colour_scene(rows, height=150, seed=6)
+    f = img / 255.0
+    f[:20, :30] = np.nan
+    f[100:, 200:] = np.inf
+    sk = detect_skyline(f, method=method)
+    s = score_rows(sk, truth)
+    assert s["missed_rate"] < 0.05 and s["within_3px"] > 0.9 and s["false_rate"] == 0, s
