@@ -23,6 +23,16 @@ def test_config_refuses_unknown_sets_and_scenarios():
         EvalConfig(scenario=4)
     with pytest.raises(ParameterError, match="skylines"):
         EvalConfig(scenario=2, skylines="oracle")
+    with pytest.raises(ParameterError, match="unknown detector"):
+        EvalConfig(scenario=2, detector="fusion")
+    assert EvalConfig(scenario=2, detector="fuse").detector == "fuse"
+
+
+def test_a_detector_the_traverse_scenario_would_ignore_is_refused(tmp_path):
+    r = CliRunner().invoke(cli, ["evaluate", "--dem", str(tmp_path / "none.tif"), "--scenario",
+                                 "traverse", "--detector", "fuse", "-o", str(tmp_path / "out")])
+    assert r.exit_code == 2 and "--detector" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "out").exists()
 
 
 def test_scenario_1_without_a_database_is_a_one_line_error(tmp_dem_file, tmp_path):

@@ -46,6 +46,7 @@ class EvalConfig:
     tilt_deg : [deg] mast tilt of the simulated frames (mountain skylines sit 5-30 deg up)
     skylines : ``detect`` (the real pipeline) or ``truth`` (a diagnosis that bypasses detection
     with the simulator's exact terrain skylines, to separate localisation from detection errors)
+    detector : the detection method (:data:`skyfix.detect.METHODS`; None: the default)
     """
 
     scenario: int
@@ -59,10 +60,15 @@ class EvalConfig:
     tilt_deg: float = 15.0
     map_errors: bool = False  # render every set from a world that differs from the map
     dem_sigma_m: float | None = None  # PoseConfig.dem_sigma_m for the cases' fixes
+    detector: str | None = None
 
     def __post_init__(self):
         if self.skylines not in ("detect", "truth"):
             raise ParameterError(f"skylines must be 'detect' or 'truth', got {self.skylines!r}")
+        from .detect.options import METHODS
+
+        if self.detector is not None and self.detector not in METHODS:
+            raise ParameterError(f"unknown detector {self.detector!r}: choose one of {', '.join(METHODS)}")
         if self.scenario not in (1, 2, 3):
             raise ParameterError(f"scenario must be 1, 2 or 3, got {self.scenario}")
         if not self.sets:
@@ -132,7 +138,8 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
     try:
         acq = load_acquisition(case_dir)
         t0 = time.perf_counter()
-        profile = acquisition_profile(acq, skylines=truth_skylines(acq) if cfg.skylines == "truth" else None)
+        profile = acquisition_profile(acq, detector=cfg.detector,
+                                      skylines=truth_skylines(acq) if cfg.skylines == "truth" else None)
         res.time_profile_s = time.perf_counter() - t0
         extra["profile"] = profile
         extra["prior"] = (acq.prior_pitch_deg, acq.prior_roll_deg)
@@ -287,8 +294,11 @@ def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command
             except SkyfixError as e:
                 log.warning("no overlay for %s: %s", res.case, e)
     print(text)
+    from .detect.options import DEFAULT_METHOD
+
     intro = (f"Scenario {cfg.scenario}, sets {', '.join(cfg.sets)}, {cfg.cases} cases per set, seed "
-             f"{cfg.seed}, DEM {Path(dem.source).name}. 'correct' = within the scenario's tolerance; "
+             f"{cfg.seed}, DEM {Path(dem.source).name}, detector {cfg.detector or DEFAULT_METHOD}. "
+             "'correct' = within the scenario's tolerance; "
              "confidence is the localiser's own, never told the truth.")
     if cfg.skylines == "truth":
         intro += (" DIAGNOSIS RUN: detection was bypassed with the simulator's exact skylines; these "

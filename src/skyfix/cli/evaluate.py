@@ -8,7 +8,8 @@ import sys
 import click
 
 from ..detect.options import DEFAULT_METHOD, METHODS
-from .options import dem_sigma, overwrite_option, traverse_path_options
+from ..errors import ParameterError
+from .options import dem_sigma, detector_option, overwrite_option, traverse_path_options
 
 
 @click.command()
@@ -38,11 +39,13 @@ from .options import dem_sigma, overwrite_option, traverse_path_options
               help="The DEM's height error [m]: the localiser weighs bins by it and its sigmas "
                    "allow for it (PoseConfig.dem_sigma_m and map_sigma_m) [default: unweighted, "
                    "sigmas for 2 m].")
+@detector_option
 @traverse_path_options
 @click.option("-o", "--out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @overwrite_option
 def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height_m, tilt_deg, skylines,
-             map_errors, dem_sigma_m, length_m, stop_spacing_m, stop_conditions, out, overwrite):
+             map_errors, dem_sigma_m, detector, length_m, stop_spacing_m, stop_conditions, out,
+             overwrite):
     """Simulate cases, run the board pipeline, and write results.csv, tables, figures and
     report.html to OUT."""
     from ..evaluate import EvalConfig
@@ -55,6 +58,10 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
         dem_sigma(dem_sigma_m)
     args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
     if scenario == "traverse":
+        if detector is not None:
+            raise ParameterError("--detector does not reach the traverse scenario (its stops are "
+                                 "detected with the default method): drop it, or evaluate "
+                                 "scenario 1, 2 or 3")
         from ..simulate import check_seed
         from ..traverse.evaluation import evaluate_traverse
         from ..traverse.simulate import parse_stop_conditions
@@ -72,7 +79,8 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
     cfg = EvalConfig(scenario=scenario, sets=tuple(s.strip().upper() for s in sets.split(",") if s.strip()),
                      cases=cases, seed=seed, area=tuple(area) if area else None,
                      camera_height_m=camera_height_m, skylines=skylines,
-                     tilt_deg=tilt_deg, map_errors=map_errors, dem_sigma_m=dem_sigma_m)
+                     tilt_deg=tilt_deg, map_errors=map_errors, dem_sigma_m=dem_sigma_m,
+                     detector=detector)
     # The command that regenerates the report, as typed (for the report's own footer).
     command = "skyfix evaluate " + " ".join(shlex.quote(a) for a in args)
     with writing_to(out):
