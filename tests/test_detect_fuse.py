@@ -32,8 +32,9 @@ def test_fuse_is_dp_with_the_network_weighed_in():
 def test_fuse_finds_a_skyline_under_clouds():
     c = np.arange(420)
     img, truth = colour_scene(120 + 15 * np.sin(c / 35.0), height=240, seed=3, clouds=True)
-    s = score_rows(detect_skyline(img, method="fuse"), truth)
-    assert s["missed_rate"] < 0.05 and s["within_3px"] > 0.9 and s["false_rate"] == 0
+    for flip in (True, False):  # net_flip=False: the network once, not also on the mirror image
+        s = score_rows(detect_skyline(img, method="fuse", net_flip=flip), truth)
+        assert s["missed_rate"] < 0.05 and s["within_3px"] > 0.9 and s["false_rate"] == 0, flip
 
 
 def test_a_network_member_that_does_not_exist_is_refused():

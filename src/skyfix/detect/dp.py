@@ -72,7 +72,7 @@ def _net_region(img, valid, opt: DpOptions, f, shape):
     # imported here: the network (OpenCV's dnn and the ONNX file) loads only when it is asked for
     from .net import sky_net_log_odds
 
-    lo, _, fn, _ = sky_net_log_odds(img, valid, NetOptions(member=opt.net_member))
+    lo, _, fn, _ = sky_net_log_odds(img, valid, NetOptions(member=opt.net_member, flip=opt.net_flip))
     lo = resample_to(lo, fn, f, shape)
     return -np.clip(lo, -opt.llr_clip, opt.net_sky_clip).astype(np.float64)
 
