@@ -28,7 +28,7 @@ def simulated(tmp_path_factory):
 def test_a_simulated_traverse_is_fused_within_the_truth(simulated, tmp_path):
     dem, trav = simulated
     out = tmp_path / "out"
-    r = run("traverse", trav, "--dem", dem, "-o", out)
+    r = run("traverse", trav, "--dem", dem, "-o", out, "--detector", "dp")
     assert r.exit_code == 0, r.output
     assert "stop 4/4" in r.output
     rows = [json.loads(line) for line in (out / "stops.jsonl").read_text().splitlines()]

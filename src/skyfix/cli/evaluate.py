@@ -59,9 +59,9 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
     args = sys.argv[sys.argv.index("evaluate") + 1:] if "evaluate" in sys.argv else []
     if scenario == "traverse":
         if detector is not None:
-            raise ParameterError("--detector does not reach the traverse scenario (its stops are "
-                                 "detected with the default method): drop it, or evaluate "
-                                 "scenario 1, 2 or 3")
+            raise ParameterError("--detector does not reach the simulated traverse of evaluate "
+                                 "(its stops are detected with the default method): drop it, or "
+                                 "run skyfix traverse --detector on the traverse")
         from ..simulate import check_seed
         from ..traverse.evaluation import evaluate_traverse
         from ..traverse.simulate import parse_stop_conditions

@@ -8,7 +8,7 @@ import logging
 import click
 
 from ..errors import ParameterError
-from .options import dem_sigma, traverse_path_options
+from .options import dem_sigma, detector_option, traverse_path_options
 
 log = logging.getLogger("skyfix.stage")  # one line per stop at the default verbosity
 
@@ -31,9 +31,10 @@ log = logging.getLogger("skyfix.stage")  # one line per stop at the default verb
               help="The DEM's height error (rms) [m] against the terrain, which the position "
                    "fixes' sigmas allow for (so the track leans on them as far as such a map "
                    "allows); 0: the DEM is the world [default: 2].")
+@detector_option
 @click.option("--no-plot", is_flag=True, help="Do not draw track.png.")
 def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence, max_rejections,
-             dem_sigma_m, no_plot):
+             dem_sigma_m, detector, no_plot):
     """Fuse a traverse's odometry with skyline headings and position fixes.
 
     Rerun with the same -o to resume at the first stop not yet written.
@@ -88,7 +89,8 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
 
     from ..pose import PoseConfig
 
-    measure = acquisition_measure(trav, dem, db=db, pose_config=PoseConfig(map_sigma_m=dem_sigma_m))
+    measure = acquisition_measure(trav, dem, db=db, pose_config=PoseConfig(map_sigma_m=dem_sigma_m),
+                                  detector=detector)
     rows = run_traverse(trav, measure, out, config=cfg,
                         convergence=convergence, on_stop=progress)
     write_track(Path(out), rows, dem.crs_wkt)
