@@ -215,14 +215,6 @@ def sim_pairs(set_dir):
             yield f"{png.parent.name}/{png.stem}", _read_rgb(png), read_skyline_json(truth)
 
 
-def held_out_members():
-    """{image name: index of the shipped network's ensemble member that never saw it}."""
-    from skyfix.detect.net import load_sky_net
-
-    by_member = load_sky_net().meta.get("held_out_by_member") or {}
-    return {n: k for k, (_, names) in enumerate(sorted(by_member.items())) for n in names}
-
-
 def site_fold_models(folder, names, n_folds=5, sim_dirs=(), sim_max_frames=10, grey=False):
     """{name: sky model trained without ``name``'s fold}: the labelled images of ``folder`` and the
     scored ``names`` dealt into ``n_folds`` folds by site (``train_sky_net.folds``: a Mars mosaic
@@ -349,8 +341,14 @@ def main(argv=None):
             peak_rss_4mp(pairs[0][1], method=m)
             if args.board_python:
                 peak_rss_4mp(pairs[0][1], method=m, python=args.board_python)
+    # fuse cross-validated: each image also gets the shipped network's member that held its fold
+    # out (the ensemble's folds are these folds: train_sky_net.folds)
+    member = {}
     if args.cv and "fuse" in args.methods.split(","):
-        n_members = len(set(held_out_members().values()))
+        from skyfix.detect.net import load_sky_net
+
+        member = load_sky_net().held_out_members()
+        n_members = len(set(member.values()))
         if n_members != args.cv_folds:
             raise SystemExit(f"--cv with fuse needs --cv-folds {n_members}: the shipped network's "
                              f"members each held out one of {n_members} folds")
@@ -359,15 +357,12 @@ def main(argv=None):
         models = site_fold_models(folder, [p[0] for p in pairs], args.cv_folds, sim_dirs,
                                   grey="grey" in args.degrade.split(","))
         for m in [m for m in args.methods.split(",") if m in ("dp", "fuse")] or ["dp"]:
-            # fuse: each image also gets the network member that held its fold out (the shipped
-            # ensemble's folds are these folds: train_sky_net.folds)
-            member = held_out_members() if m == "fuse" else {}
+            per_image = {n: {"net_member": k} for n, k in member.items()} if m == "fuse" else {}
             for f in folders:  # one table per set: Mars mosaics and Earth photos fail differently
                 title = f"{f.name} (sky model cross-validated, {args.cv_folds} folds by site"
                 title += ", held-out network member)" if m == "fuse" else ")"
                 run_set([p for p in pairs if folder_of[p[0]] == f.name], m, models=models,
-                        title=title, image_options={n: {"net_member": k} for n, k in member.items()},
-                        **options)
+                        title=title, image_options=per_image, **options)
     if args.cv_net:
         from cv_net import run_cv_net
 

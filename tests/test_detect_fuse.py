@@ -58,8 +58,7 @@ def test_earth_photos_that_defeat_dp_are_found_by_a_member_that_never_saw_them()
         pytest.skip(f"no Earth dev set at {WEB}")
     import cv2
 
-    members = load_sky_net().meta.get("held_out_by_member") or {}
-    member = {n: k for k, (_, names) in enumerate(sorted(members.items())) for n in names}
+    member = load_sky_net().held_out_members()
     for name in HARD_EARTH:
         img = cv2.cvtColor(cv2.imread(str(WEB / f"{name}.png")), cv2.COLOR_BGR2RGB)
         truth = read_skyline_json(WEB / f"{name}.skyline.json")

@@ -46,6 +46,24 @@ def is_grey_rgb(img) -> bool:
     return bool(np.array_equal(img[..., 0], img[..., 1]) and np.array_equal(img[..., 1], img[..., 2]))
 
 
+def non_finite_as_no_data(img, mask):
+    """(image, mask) with a float image's NaN (or infinite) pixels as no data: left out of
+    ``mask`` (None = all valid) and set to 0, so that none reaches a filter, the classifier or the
+    network (one NaN pixel made every column's region cost NaN: no skyline at all, silently). An
+    image without such pixels comes back as it is."""
+    if img.dtype.kind != "f":
+        return img, mask
+    finite = np.isfinite(img) if img.ndim == 2 else np.isfinite(img).all(axis=2)
+    if finite.all():
+        return img, mask
+    img = np.where(finite[..., None] if img.ndim == 3 else finite, img, 0.0)
+    if mask is None:
+        return img, finite
+    mask = np.asarray(mask)
+    # a mask of the wrong shape is left to valid_mask, which names the problem
+    return img, (mask.astype(bool) & finite) if mask.shape == finite.shape else mask
+
+
 def valid_mask(img, mask, no_data_black):
     """H x W bool: the pixels holding data: ``mask`` (bool-like, H x W; None = all) and, with
     ``no_data_black``, not pure black (0 in every channel)."""

@@ -130,6 +130,13 @@ class SkyNet:
         self.cal_x = np.asarray(cal.get("raw", []), float)
         self.cal_y = np.asarray(cal.get("p_within_3px", []), float)
 
+    def held_out_members(self) -> dict:
+        """{image name: index of the ensemble member that never saw it in training} (the
+        ``held_out_by_member`` lists in the metadata; members in name order, as the output
+        channels are); empty for a network without them."""
+        by_member = self.meta.get("held_out_by_member") or {}
+        return {n: k for k, (_, names) in enumerate(sorted(by_member.items())) for n in names}
+
     def _read(self):
         import cv2
 

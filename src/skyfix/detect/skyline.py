@@ -9,30 +9,13 @@ from ..errors import ParameterError
 from ..formats import Skyline
 from .bayes import detect_bayes
 from .dp import detect_dp
-from .image import as_gray_rgb, is_grey_rgb, valid_mask
+from .image import as_gray_rgb, is_grey_rgb, non_finite_as_no_data, valid_mask
 from .net import detect_net
 from .options import DEFAULT_METHOD, METHODS, PRESETS, check_options
 
 #: method name -> detector(img, valid, options, model) -> (rows, confidence, column validity);
 #: a new detector enters here and in :data:`skyfix.detect.options.PRESETS`
 DETECTORS = {"dp": detect_dp, "bayes": detect_bayes, "net": detect_net, "fuse": detect_dp}
-
-
-def _non_finite_as_no_data(img, mask):
-    """A float image's NaN (or infinite) pixels are no data: left out of ``mask`` and set to 0,
-    so that none reaches a filter, the classifier or the network (one NaN pixel made every
-    column's region cost NaN: no skyline at all, silently)."""
-    import numpy as np
-
-    finite = np.isfinite(img) if img.ndim == 2 else np.isfinite(img).all(axis=2)
-    if finite.all():
-        return img, mask
-    img = np.where(finite[..., None] if img.ndim == 3 else finite, img, 0.0)
-    if mask is None:
-        return img, finite
-    mask = np.asarray(mask)
-    # a mask of the wrong shape is left to valid_mask, which names the problem
-    return img, (mask.astype(bool) & finite) if mask.shape == finite.shape else mask
 
 
 def detect_skyline(image, *, mask=None, method: str = DEFAULT_METHOD, name: str = "", model=None,
@@ -61,8 +44,7 @@ def detect_skyline(image, *, mask=None, method: str = DEFAULT_METHOD, name: str 
         raise ParameterError(f"bad option for method {method!r}: {e}") from None
     check_options(opt)
     img, _, _ = as_gray_rgb(image)
-    if img.dtype.kind == "f":
-        img, mask = _non_finite_as_no_data(img, mask)
+    img, mask = non_finite_as_no_data(img, mask)
     if img.ndim == 3 and is_grey_rgb(img):
         img = img[..., 0]  # a grey image stored as RGB: treated as the grey image it is
     valid = valid_mask(img, mask, opt.no_data_black)
