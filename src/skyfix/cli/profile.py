@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ..detect.options import DEFAULT_METHOD, METHODS
+from .options import detector_option
 
 
 @click.command("profile")
@@ -16,8 +16,7 @@ from ..detect.options import DEFAULT_METHOD, METHODS
                    "(pointing unknown or poor). A panorama acquisition is read directly.")
 @click.option("--azimuth-bins", type=int, default=360, show_default=True,
               help="Bins over 360 deg; bin k is centred on k*360/n deg.")
-@click.option("--detector", type=click.Choice(METHODS), default=DEFAULT_METHOD, show_default=True,
-              help="Skyline detection method.")
+@detector_option
 @click.option("--no-refine", is_flag=True, help="Keep the nominal pan angles (project).")
 @click.option("-o", "--out", "--output", "output", type=click.Path(path_type=Path),
               help="Profile JSON (default: stdout).")
