@@ -1,0 +1,59 @@
+"""The sky network's training data as it travels to a training machine (scripts/train_sky_net.py
+--write-pack / --pack) and the crops made in worker processes: what arrives is what was written,
+and the batches do not depend on how many workers made them. PyTorch is not needed."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+import train_sky_net as T  # noqa: E402
+
+
+def _images():
+    rng = np.random.default_rng(3)
+    out = []
+    for k, kind in enumerate(("mars", "web", "sim")):
+        h, w = 180, 400
+        img = np.zeros((h, w, 3), np.uint8)
+        img[: h // 3] = (90, 120, 200)  # sky
+        img[h // 3:] = rng.integers(40, 120, (h - h // 3, w, 3))  # textured ground
+        img[:, :25] = 0  # a mosaic's no-data border
+        y = np.where(np.arange(h)[:, None] < h // 3, 1, 0).repeat(w, 1).astype(np.uint8)
+        y[:, :25] = 255
+        y[h // 3 + 10: h // 3 + 20, 200:260] = T.MOUNTAIN
+        y[:, 390:] = 255  # a column without a drawn skyline: valid image, no label
+        out.append((f"im{k}", f"{kind}:{k}", kind, img, y))
+    return out
+
+
+def test_a_pack_gives_back_the_labels_and_the_no_data_exactly(tmp_path):
+    images = _images()
+    T.write_pack(images, tmp_path / "pack", sims=["set_a"])
+    back = list(T.pack_images(tmp_path / "pack"))
+    assert [b[:3] for b in back] == [i[:3] for i in images]
+    for (_, _, _, img, y), (_, _, _, img2, y2) in zip(images, back):
+        assert np.array_equal(y2, y)  # labels lossless, 255 both for no data and for no label
+        none = ~img.any(axis=2)
+        assert np.array_equal(~img2.any(axis=2), none)  # the JPEG's near-black border is zeroed
+        diff = np.abs(img2.astype(int) - img.astype(int))
+        assert np.max(diff[5:40, 48:380]) <= 3  # the smooth sky, off JPEG blocks that hold an edge
+        assert np.mean(diff[~none]) < 15  # and the ground, uniform noise, JPEG's worst case
+
+
+def test_batches_are_the_same_whatever_the_number_of_workers():
+    images = _images()
+    p = np.full(len(images), 1 / len(images))
+    one = list(T._batches(images, p, 2, 7, 3, workers=1))
+    two = list(T._batches(images, p, 2, 7, 3, workers=2))
+    assert len(one) == len(two) == 3
+    for (x1, y1), (x2, y2) in zip(one, two):
+        assert x1.shape[0] == 2 and x1.shape[2:] == T.CROP and y1.shape == (2, *T.CROP)
+        assert np.array_equal(x1, x2) and np.array_equal(y1, y2)
+    # and the crops hold labelled pixels of both kinds, from the images drawn
+    ys = np.stack([y for _, y in one])
+    assert (ys == 1).any() and (ys == 0).any()
