@@ -28,6 +28,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..jit import njit, num_threads, prange
 from ..optional import require
+from .forest import elimination_tables, float32_thresholds, forest_scores
 from .image import (as_gray_rgb, downscale, downscale_factor, downscale_rgb, downscale_valid,
                     fill_invalid, to_float_gray, trusted, valid_mask)
 
@@ -168,16 +169,10 @@ def _ensemble_parallel(X, feat, thr, child, value, roots, depth, baseline):
 
 
 def _walk_tables(feat, thr, left, right, leaf, roots):
-    """(feat, float32 thresholds, interleaved children, roots, per-tree depths) for :func:`_walk_block`.
-
-    The thresholds are rounded down to float32: for a float32 x, ``x <= t`` (float64) holds
-    exactly when ``x <= t32`` with t32 the largest float32 not above t, so the splits are the
-    trees' own and the comparison stays in float32.
-    """
+    """(feat, float32 thresholds, interleaved children, roots, per-tree depths) for :func:`_walk_block`
+    (thresholds as :func:`~skyfix.detect.forest.float32_thresholds` rounds them)."""
     idx = np.arange(feat.size)
-    t32 = np.where(leaf, np.inf, thr).astype(np.float32)
-    over = t32.astype(np.float64) > np.where(leaf, np.inf, thr)
-    t32[over] = np.nextafter(t32[over], np.float32(-np.inf))
+    t32 = float32_thresholds(thr, leaf)
     child = np.empty(2 * feat.size, np.int32)
     child[0::2] = np.where(leaf, idx, left)
     child[1::2] = np.where(leaf, idx, right)
@@ -215,17 +210,35 @@ class SkyModel:
     def log_odds_sky(self, X):
         """log P(sky) / P(terrain) per row of X (n, N_FEATURES)."""
         X = np.ascontiguousarray(X, dtype=np.float32).reshape(-1, N_FEATURES)
-        f, t, child, roots, depth = self._tables()
         # a parallel loop on one thread costs 25 % (the board's single core)
-        kernel = _ensemble_parallel if num_threads() > 1 else _ensemble_serial
+        parallel = num_threads() > 1
+        elim = self._elimination()
+        if elim is not None:
+            return forest_scores(X, elim, self.baseline, parallel=parallel)
+        return self.walk_log_odds_sky(X, parallel=parallel)
+
+    def walk_log_odds_sky(self, X, *, parallel=False):
+        """:meth:`log_odds_sky` by walking each tree to its leaf: the reference for the leaf
+        elimination that :meth:`log_odds_sky` uses, and the way for trees of over 32 leaves."""
+        X = np.ascontiguousarray(X, dtype=np.float32).reshape(-1, N_FEATURES)
+        f, t, child, roots, depth = self._tables()
+        kernel = _ensemble_parallel if parallel else _ensemble_serial
         return kernel(X, f, t, child, self.value, roots, depth, self.baseline)
 
+    # caches, not state (the dataclass is frozen otherwise)
     def _tables(self):
         tab = self.__dict__.get("_tab")
         if tab is None:
             tab = _walk_tables(self.feat, self.thr, self.left, self.right, self.leaf, self.roots)
-            object.__setattr__(self, "_tab", tab)  # a cache, not state: frozen otherwise
+            object.__setattr__(self, "_tab", tab)
         return tab
+
+    def _elimination(self):
+        if "_elim" not in self.__dict__:
+            object.__setattr__(self, "_elim", elimination_tables(
+                self.feat, self.thr, self.left, self.right, self.leaf, self.value, self.roots,
+                N_FEATURES))
+        return self.__dict__["_elim"]
 
     def save(self, path):
         from ._io import atomic_path
