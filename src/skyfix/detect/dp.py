@@ -25,6 +25,7 @@ from .image import (downscale, downscale_factor, downscale_rgb, downscale_valid,
                     resample_to, to_float_gray, trusted)
 from .options import DpOptions, NetOptions
 from .path import BIG, column_prefix, solve_path
+from .quantile import percentile
 from .refine import refine_full, skyline_allowed
 from .runs import drop_short_runs, drop_unanchored_runs
 from .skymodel import resolve_model, sky_log_odds
@@ -45,7 +46,7 @@ def _dp_costs(gray_s, valid_s, opt: DpOptions, d=None):
     gx = cv2.Sobel(sm, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(sm, cv2.CV_32F, 0, 1, ksize=3)
     mag = np.sqrt(gx * gx + gy * gy)
-    scale = np.percentile(mag[valid_s], 99) if valid_s.any() else 1.0
+    scale = percentile(mag[valid_s], 99) if valid_s.any() else 1.0
     G = np.clip(mag / max(scale, 1e-6), 0, 1).astype(np.float64)
     # edge-ness falls off over a couple of pixels from a Canny edge
     dist = cv2.distanceTransform((~edges).astype(np.uint8), cv2.DIST_L2, 3)

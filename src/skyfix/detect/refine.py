@@ -10,6 +10,7 @@ import numpy as np
 
 from ..jit import njit
 from .path import BIG, solve_path
+from .quantile import percentile
 
 
 def skyline_allowed(valid, min_sky_rows=1):
@@ -59,8 +60,7 @@ def refine_full(gray, valid, top_full, bottom_full, f, refine_band: float):
     hi = int(b[have].max()) + 1
     rows = np.arange(lo, hi)[:, None]
     sub_ok = ok[lo:hi] & (rows >= a[None, :]) & (rows <= b[None, :])
-    # step[ok] is a copy already: the percentile may partition it in place
-    scale = np.percentile(step[ok], 99.5, overwrite_input=True) if ok.any() else 1.0
+    scale = percentile(step[ok], 99.5) if ok.any() else 1.0
     del ok
     # prefer the coarse span (its centre) a little, so texture steps nearby do not pull the row
     mid = 0.5 * (np.nan_to_num(top_full) + np.nan_to_num(bottom_full) + f - 1)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .options import DpOptions
+from .quantile import percentile
 
 
 def _texture(gray_s, valid_s, radius):
@@ -36,7 +37,7 @@ def _noise_level(gray_s, valid_s, block=15):
     n = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
     lap = np.abs(cv2.filter2D(np.asarray(gray_s, np.float32), -1, n))
     loc = cv2.blur(lap, (block, block))
-    return float(np.percentile(loc[valid_s], 5))
+    return percentile(loc[valid_s], 5)
 
 
 def texture_region(gray_s, valid_s, opt: DpOptions, sure_sky=None):
