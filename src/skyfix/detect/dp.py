@@ -129,18 +129,11 @@ def _valid_column_mean(d, valid):
     return np.where(n > 0, s / np.maximum(n, 1), 0.0)
 
 
-def detect_dp(img, valid, opt: DpOptions, model=None):
-    """The ``dp`` detector on a prepared image.
-
-    img : H x W (grey) or H x W x 3 image; valid : H x W bool, pixels holding data;
-    opt : :class:`DpOptions`; model : the sky classifier (None = the shipped one).
-    Returns (rows (W,) [px, NaN = no skyline], confidence (W,) in [0, 1], column validity (W,)).
-    """
-    H, W = img.shape[:2]
-    col_valid = valid.any(axis=0)
-    valid = trusted(valid)
-    gray = fill_invalid(to_float_gray(img), valid)
-    f = downscale_factor(H, W, opt.work_pixels)
+def _working_path(img, valid, gray, opt: DpOptions, model, f):
+    """The path at the working scale (``f`` times smaller): (top, bottom) rows per working column
+    (-1 = no skyline) and the confidence of each. Its own function so that the working-scale
+    arrays (costs, region terms, colour: ~15 MB for a navcam frame) are freed before the
+    full-resolution refinement, whose band can be the whole image: they were the board's peak."""
     gray_s = downscale(gray, f)
     valid_s = downscale_valid(valid, f)
     d = None
@@ -171,14 +164,8 @@ def detect_dp(img, valid, opt: DpOptions, model=None):
         d = d + opt.w_net * _net_region(img, valid, opt, f, gray_s.shape)
     enter, vert, G, none, d = _dp_costs(gray_s, valid_s, opt, d)
     top, bottom = solve_path(enter, vert, G, none, 1, opt.jump_cost, opt.w_diff, opt.switch_cost)
-    h, w = gray_s.shape
-    # working column j covers full-res columns j f .. j f + f - 1; rows scale by f
-    full_cols = np.minimum(np.arange(W) // f, w - 1)
-    top_f = np.where(top >= 0, top * float(f), np.nan)[full_cols]
-    bot_f = np.where(top >= 0, bottom * float(f), np.nan)[full_cols]
-    rows = refine_full(gray, valid, top_f, bot_f, f, opt.refine_band)
     # confidence: edge strength at the chosen pixel times how sky-like the pixels above are
-    conf_s = np.zeros(w)
+    conf_s = np.zeros(top.size)
     have = top >= 0
     cs = np.flatnonzero(have)
     if cs.size:
@@ -192,6 +179,28 @@ def detect_dp(img, valid, opt: DpOptions, model=None):
     # no-skyline: confident when the column clearly lacks sky (mean d well above 0)
     col_mean = _valid_column_mean(d, valid_s)
     conf_s[no] = np.clip(0.5 + 0.5 * np.abs(col_mean[no]), 0, 1)
+    return top, bottom, conf_s
+
+
+def detect_dp(img, valid, opt: DpOptions, model=None):
+    """The ``dp`` detector on a prepared image.
+
+    img : H x W (grey) or H x W x 3 image; valid : H x W bool, pixels holding data;
+    opt : :class:`DpOptions`; model : the sky classifier (None = the shipped one).
+    Returns (rows (W,) [px, NaN = no skyline], confidence (W,) in [0, 1], column validity (W,)).
+    """
+    H, W = img.shape[:2]
+    col_valid = valid.any(axis=0)
+    valid = trusted(valid)
+    gray = fill_invalid(to_float_gray(img), valid)
+    f = downscale_factor(H, W, opt.work_pixels)
+    top, bottom, conf_s = _working_path(img, valid, gray, opt, model, f)
+    w = top.size
+    # working column j covers full-res columns j f .. j f + f - 1; rows scale by f
+    full_cols = np.minimum(np.arange(W) // f, w - 1)
+    top_f = np.where(top >= 0, top * float(f), np.nan)[full_cols]
+    bot_f = np.where(top >= 0, bottom * float(f), np.nan)[full_cols]
+    rows = refine_full(gray, valid, top_f, bot_f, f, opt.refine_band)
     conf = conf_s[full_cols]
     unsure = np.isfinite(rows) & (conf < opt.min_confidence)
     rows[unsure] = np.nan
