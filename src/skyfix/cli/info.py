@@ -67,7 +67,6 @@ def describe_dem(path) -> dict:
     from pyproj import CRS
 
     from ..dem import load_dem
-    from ..planets import planet_from_crs
     from ..workcrs import geographic_bounds, scale_error
 
     with rasterio.open(path) as src:

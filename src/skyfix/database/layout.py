@@ -11,7 +11,6 @@ Position grid
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 from dataclasses import dataclass
 

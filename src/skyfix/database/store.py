@@ -167,6 +167,18 @@ class SkylineDatabase:
         """Every block built, and every built block's data there."""
         return self.blocks_done == self.n_blocks and not self._absent
 
+    def is_built(self, br: int, bc: int) -> bool:
+        """Whether block (br, bc) was built (its marker is there; its data may still be gone)."""
+        return (br, bc) in self._done
+
+    def data_missing(self, br: int, bc: int) -> tuple[str, ...]:
+        """The arrays whose chunk file of built block (br, bc) is gone (empty: all there)."""
+        return tuple(self._absent.get((br, bc), ()))
+
+    def damage_message(self) -> str | None:
+        """What is gone and what to do (:func:`~.integrity.data_missing_message`), or None."""
+        return data_missing_message(self.path, self._absent) if self._absent else None
+
     # --- positions -------------------------------------------------------------------------------
     def index_of(self, x, y):
         """(row, col) int64 of the nearest grid position to (x, y) [m] (no bounds check)."""
@@ -220,7 +232,9 @@ class SkylineDatabase:
             a = self._arrays[name] = self._g[name]
         return a
 
-    def _read_unchecked(self, name: str, br: int, bc: int) -> np.ndarray:
+    def read_stored(self, name: str, br: int, bc: int) -> np.ndarray:
+        """:meth:`read_raw` without its checks: whatever zarr or the decoder gives or raises (the
+        verifier's own access, which checks the bytes against the block's checksums itself)."""
         rs, cs = self.grid.block_slices(br, bc)
         if name == "elevation":  # the bulk of every search: decoded directly where it can be
             read = self._elevation_reader()
@@ -246,7 +260,7 @@ class SkylineDatabase:
         if name in self._absent.get((br, bc), ()):
             raise DatabaseError(data_missing_message(self.path, {(br, bc): self._absent[(br, bc)]}))
         try:
-            return self._read_unchecked(name, br, bc)
+            return self.read_stored(name, br, bc)
         except Exception as e:  # a damaged chunk fails to decode (zstd checksum) in many ways
             raise DatabaseError(
                 f"{self.path}: block ({br}, {bc}) data unreadable ({name} chunk: {type(e).__name__}: "

@@ -4,7 +4,6 @@ re-rendered from the DEM) and describing it (:func:`describe`, for ``skyfix info
 
 from __future__ import annotations
 
-import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,7 +13,6 @@ import numpy as np
 from ..errors import ParameterError
 from .build import dir_size
 from .executors import is_whole_at_least_0
-from .integrity import data_missing_message
 from .layout import DATA_ARRAYS, SKIP_TOL_DEG, array_sha256, read_marker
 from .store import open_database
 
@@ -57,7 +55,7 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
     samples : distinct positions of intact blocks re-rendered and compared within half the
         quantisation step (+ 1e-4 deg); all of them if there are fewer; 0 = checksums only
     """
-    from ..dem import Dem, load_dem
+    from ..dem import Dem
     from ..horizon import render_horizons
 
     if not is_whole_at_least_0(samples):
@@ -75,12 +73,12 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
         if marker is None:
             rep.missing.append((br, bc))
             continue
-        gone = db._absent.get((br, bc))
+        gone = db.data_missing(br, bc)
         if gone:
             rep.corrupt.append(((br, bc), f"data missing: no chunk file for {', '.join(gone)}"))
             continue
         try:
-            got = {name: db._read_unchecked(name, br, bc) for name in DATA_ARRAYS}
+            got = {name: db.read_stored(name, br, bc) for name in DATA_ARRAYS}
             bad = [k for k, v in got.items() if array_sha256(v) != marker["sha256"].get(k)]
         except Exception as e:  # a damaged chunk fails to decode (zstd checksum) in many ways
             rep.corrupt.append(((br, bc), f"unreadable: {type(e).__name__}: {e}"))
@@ -156,7 +154,7 @@ def describe(path) -> dict:
     size = dir_size(db.path)
     built = 0
     for br, bc in db.grid.blocks():
-        if (br, bc) in db._done:
+        if db.is_built(br, bc):
             rs, cs = db.grid.block_slices(br, bc)
             built += (rs.stop - rs.start) * (cs.stop - cs.start)
     return {
@@ -169,7 +167,7 @@ def describe(path) -> dict:
         "scale_deg": db.scale_deg, "dem": a["dem"],
         "blocks_done": db.blocks_done, "n_blocks": db.n_blocks, "complete": db.is_complete,
         "blocks_data_missing": [list(b) for b in db.blocks_data_missing],
-        "damage": data_missing_message(db.path, db._absent) if db._absent else None,
+        "damage": db.damage_message(),
         "size_bytes": size,
         "positions_built": built,
         # of the skylines built so far (none yet: no meaningful figure)

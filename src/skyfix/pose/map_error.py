@@ -14,7 +14,6 @@ Used by the image-plane attitude (:mod:`skyfix.pose.image_plane`) and by the pos
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 

@@ -9,7 +9,6 @@ import os
 import shutil
 import tempfile
 from contextlib import contextmanager
-from dataclasses import replace
 from pathlib import Path
 
 from ..errors import OutputExistsError

@@ -4,7 +4,6 @@ with its set's conditions.
 
 from __future__ import annotations
 
-import os
 from dataclasses import asdict
 from pathlib import Path
 

@@ -37,7 +37,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import SkyfixError
-from .ekf import CORROBORATION_CHI2, PoseFilter, wrap_deg
+from .ekf import CORROBORATION_CHI2, PoseFilter
 from .inputs import Traverse
 
 STOPS_FILE = "stops.jsonl"
