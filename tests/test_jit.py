@@ -174,3 +174,25 @@ print('ok')
     # the user hears of it, once per kernel, with the types that were not covered
     said = [ln for ln in r.stderr.splitlines() if "ahead-of-time build does not cover" in ln]
     assert len(said) == 1 and "column_prefix" in said[0] and "float32[2d, C]" in said[0], r.stderr
+
+
+def test_a_build_that_cannot_load_falls_back_to_the_jit(tmp_path):
+    """A kernels module built for another Python or machine (here: not a shared object at all)
+    is said once and left aside: the kernels run on numba's JIT, the same answers."""
+    (tmp_path / (jit.MODULE + ".json")).write_text('{"exports": {}}')
+    (tmp_path / (jit.MODULE + ".cpython-311-x86_64-linux-gnu.so")).write_bytes(b"not an ELF file")
+    code = """
+import numpy as np
+from skyfix import jit
+from skyfix.detect.path import column_prefix
+assert not jit.ahead_of_time()
+d = np.arange(6, dtype=np.float64).reshape(3, 2)
+v = np.ones((3, 2), bool)
+assert np.array_equal(column_prefix(d, v), np.vstack([np.zeros(2), np.cumsum(d, axis=0)]))
+print('ok')
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
+                       env={**os.environ, "SKYFIX_BOARD_KERNELS": str(tmp_path)})
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+    said = [ln for ln in r.stderr.splitlines() if "cannot be used" in ln]
+    assert len(said) == 1 and "ImportError" in said[0] and "board_kernels.py build" in said[0], r.stderr

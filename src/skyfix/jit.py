@@ -62,11 +62,20 @@ def _load_aot():
     so = [p for p in Path(folder).glob(MODULE + ".*") if p.suffix in (".so", ".pyd")]
     if not so:
         return None
-    spec = importlib.util.spec_from_file_location(f"skyfix.{MODULE}", so[0])
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    table = json.loads(table_path.read_text())
-    _state["aot"] = (module, table["exports"])
+    try:
+        spec = importlib.util.spec_from_file_location(f"skyfix.{MODULE}", so[0])
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        table = json.loads(table_path.read_text())
+        exports = table["exports"]
+    except (ImportError, OSError, ValueError, KeyError, TypeError) as e:
+        # a build for another Python or machine, or a damaged table: the JIT gives the same
+        # answers, at the cost the build was made to save; say so rather than fail every command
+        logging.getLogger("skyfix.jit").warning(
+            "the ahead-of-time kernels in %s cannot be used (%s: %s); compiling with numba instead "
+            "(rebuild them: scripts/board_kernels.py build)", folder, type(e).__name__, e)
+        return None
+    _state["aot"] = (module, exports)
     return _state["aot"]
 
 
