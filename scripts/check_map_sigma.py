@@ -24,20 +24,9 @@ import numpy as np
 from skyfix.dem import Dem, load_dem
 from skyfix.horizon import render_horizons
 from skyfix.pose.forward import BodyProfiler
-from skyfix.pose.map_error import MAP_CORRELATION_M, fit_map_covariance
+from skyfix.pose.map_error import correlated_height_errors, fit_map_covariance
 
 BINS, N_BODY, CAMERA_M = 1440, 360, 1.5
-
-
-def error_fields(shape, dx, dy, sigma_m, count, rng):
-    """``count`` height-error grids [m] with covariance ``sigma^2 exp(-r / MAP_CORRELATION_M)``."""
-    n = 1 << int(math.ceil(math.log2(2 * max(shape))))
-    fy = np.fft.fftfreq(n, dy)[:, None]
-    fx = np.fft.fftfreq(n, dx)[None, :]
-    h = (1.0 + (2 * np.pi * np.hypot(fx, fy) * MAP_CORRELATION_M) ** 2) ** -0.75
-    h *= sigma_m / np.sqrt(np.mean(h ** 2))
-    for _ in range(count):
-        yield np.fft.ifft2(np.fft.fft2(rng.standard_normal((n, n))) * h).real[:shape[0], :shape[1]]
 
 
 def main(argv=None):
@@ -77,8 +66,8 @@ def main(argv=None):
     ok = np.isfinite(jac).all(axis=1) & np.isfinite(q0)
     gain = np.linalg.solve(jac[ok].T @ jac[ok], jac[ok].T)[:3]
     moves = []
-    for err in error_fields(dem.z.shape, dem.dx, dem.dy, a.dem_sigma_m, a.draws,
-                            np.random.default_rng(a.seed)):
+    for err in correlated_height_errors(dem.z.shape, (dem.dy, dem.dx), a.dem_sigma_m, a.draws,
+                                        np.random.default_rng(a.seed)):
         world = Dem(dem.z + err.astype(np.float32), dem.x0, dem.y0, dem.dx, dem.dy, dem.crs_wkt,
                     dem.crs_name, body=getattr(dem, "body", None))
         ground = float(render_horizons(world, [x], [y], azimuth_bins=4).ground_z_m[0])

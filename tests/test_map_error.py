@@ -9,7 +9,8 @@ import pytest
 from skyfix.dem import Dem
 from skyfix.horizon import render_horizons
 from skyfix.pose.forward import BodyProfiler
-from skyfix.pose.map_error import MAP_CORRELATION_M, error_covariance, fit_map_covariance
+from skyfix.pose.map_error import (MAP_CORRELATION_M, correlated_height_errors, error_covariance,
+                                   fit_map_covariance)
 
 
 def test_error_covariance_closed_forms():
@@ -30,18 +31,6 @@ def _terrain():
          + 180 * np.exp(-((x - 1500) ** 2 + (y - 600) ** 2) / 6e4)
          + 60 * np.sin(x / 90.0) * np.cos(y / 130.0) + 0.03 * x)
     return z
-
-
-def _correlated_fields(shape, cell_m, sigma_m, count, rng):
-    """Height errors with an exponential covariance ``sigma^2 exp(-r / L)``: white noise filtered
-    by the square root of that covariance's 2-D spectrum, ``(1 + (2 pi f L)^2)^(-3/2)``, on a grid
-    padded so that the periodic wrap does not correlate opposite edges."""
-    n = 2 * max(shape)
-    f = np.hypot(*np.meshgrid(np.fft.fftfreq(n, cell_m), np.fft.fftfreq(n, cell_m)))
-    h = (1.0 + (2 * np.pi * f * MAP_CORRELATION_M) ** 2) ** -0.75
-    h *= sigma_m / np.sqrt(np.mean(h ** 2))
-    for _ in range(count):
-        yield np.fft.ifft2(np.fft.fft2(rng.standard_normal((n, n))) * h).real[:shape[0], :shape[1]]
 
 
 def test_map_covariance_matches_the_scatter_of_fits_on_maps_that_differ_from_the_world():
@@ -74,7 +63,7 @@ def test_map_covariance_matches_the_scatter_of_fits_on_maps_that_differ_from_the
     jac = np.stack(cols + [np.ones(n)], axis=1)
     gain = np.linalg.solve(jac.T @ jac, jac.T)[:3]
     moves = []
-    for err in _correlated_fields(z.shape, cell, sigma, 60, np.random.default_rng(3)):
+    for err in correlated_height_errors(z.shape, cell, sigma, 60, np.random.default_rng(3)):
         world = Dem.from_array(z + err, cell)
         ground = float(render_horizons(world, [x], [y], azimuth_bins=4).ground_z_m[0])
         seen = render_horizons(world, [x], [y], azimuth_bins=bins,

@@ -29,6 +29,22 @@ MAP_CORRELATION_M = 150.0
 POSITION_STEP_M = 2.0
 
 
+def correlated_height_errors(shape, cell_m, sigma_m, count, rng, *, correlation_m=MAP_CORRELATION_M):
+    """``count`` height-error grids [m] of ``shape`` on cells of ``cell_m`` [m] (one number, or
+    (dy, dx)) drawn from this model: covariance ``sigma_m^2 exp(-r / correlation_m)``. White noise
+    filtered by the square root of that covariance's 2-D spectrum, ``(1 + (2 pi f L)^2)^(-3/2)``,
+    on a grid padded to a power of two at least twice the larger side, so that the periodic wrap
+    does not correlate opposite edges. The Monte Carlo that checks :func:`fit_map_covariance`
+    draws its worlds with it (tests, ``scripts/check_map_sigma.py``)."""
+    dy, dx = (cell_m, cell_m) if np.ndim(cell_m) == 0 else cell_m
+    n = 1 << int(np.ceil(np.log2(2 * max(shape))))
+    f = np.hypot(np.fft.fftfreq(n, dx)[None, :], np.fft.fftfreq(n, dy)[:, None])
+    h = (1.0 + (2 * np.pi * f * correlation_m) ** 2) ** -0.75
+    h *= sigma_m / np.sqrt(np.mean(h ** 2))
+    for _ in range(count):
+        yield np.fft.ifft2(np.fft.fft2(rng.standard_normal((n, n))) * h).real[:shape[0], :shape[1]]
+
+
 def error_covariance(points_xy, gain, dem_sigma_m, corr_m=MAP_CORRELATION_M):
     """Covariance of the moves the map's error gives each observation.
 
