@@ -21,11 +21,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from sklearn.ensemble import HistGradientBoostingClassifier
 from sklearn.metrics import roc_auc_score
 
 from skyfix.detect.image import as_gray_rgb, downscale, fill_invalid, to_float_gray, trusted, valid_mask
-from skyfix.detect.skymodel import sky_inputs
+from skyfix.detect.skymodel import sky_classifier, sky_inputs
 
 DEV = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "marsscapes-dev"
 
@@ -112,9 +111,7 @@ def main(argv=None):
             y = c == 1
             w = np.where(y, w / w[y].sum(), w / w[~y].sum())
             w = np.where(c == 2, 2 * w, w)
-            clf = HistGradientBoostingClassifier(max_iter=60, max_leaf_nodes=16, max_depth=4,
-                                                 learning_rate=0.15, l2_regularization=1.0,
-                                                 min_samples_leaf=100, early_stopping=False, random_state=0)
+            clf = sky_classifier(seed=0)
             clf.fit(X, y, sample_weight=w * len(y) / w.sum())
             for n in te:
                 lo_all.append(clf.decision_function(data[n][0][:, cols]))

@@ -335,6 +335,18 @@ def training_pixels(image, sky_mask, *, model_pixels=250_000, no_data_black=True
     return X[keep], frac[keep] >= 0.9
 
 
+def sky_classifier(*, seed=0, max_iter=60, max_leaf_nodes=16, max_depth=4, learning_rate=0.15):
+    """The sky model's estimator, unfitted: scikit-learn's ``HistGradientBoostingClassifier`` with
+    the shipped recipe (what :func:`fit_sky_model` fits; benchmarks that refit it on other
+    features take it from here)."""
+    HistGradientBoostingClassifier = require(
+        "sklearn.ensemble", "training the sky model").HistGradientBoostingClassifier
+    return HistGradientBoostingClassifier(max_iter=max_iter, max_leaf_nodes=max_leaf_nodes,
+                                          max_depth=max_depth, learning_rate=learning_rate,
+                                          l2_regularization=1.0, min_samples_leaf=100,
+                                          early_stopping=False, random_state=seed)
+
+
 def fit_sky_model(parts, *, per_image=20_000, seed=0, max_iter=60, max_leaf_nodes=16,
                   max_depth=4, learning_rate=0.15, balance=True):
     """Train the classifier on several images' :func:`training_pixels` (X, y) pairs.
@@ -343,9 +355,8 @@ def fit_sky_model(parts, *, per_image=20_000, seed=0, max_iter=60, max_leaf_node
     so a large mosaic does not outvote a small one; with ``balance`` sky and terrain get equal
     total weight (prior odds 1). Returns (:class:`SkyModel`, the fitted scikit-learn estimator).
     """
-    HistGradientBoostingClassifier = require(
-        "sklearn.ensemble", "training the sky model").HistGradientBoostingClassifier
-
+    clf = sky_classifier(seed=seed, max_iter=max_iter, max_leaf_nodes=max_leaf_nodes,
+                         max_depth=max_depth, learning_rate=learning_rate)
     rng = np.random.default_rng(seed)
     Xs, ys, ws = [], [], []
     for X, y in parts:
@@ -367,11 +378,6 @@ def fit_sky_model(parts, *, per_image=20_000, seed=0, max_iter=60, max_leaf_node
         # pixels, not the dev set's share of sky (which an unseen panorama need not share)
         w = np.where(y, w / w[y].sum(), w / w[~y].sum())
     w *= len(y) / w.sum()
-    clf = HistGradientBoostingClassifier(max_iter=max_iter, max_leaf_nodes=max_leaf_nodes,
-                                         max_depth=max_depth,
-                                         learning_rate=learning_rate, l2_regularization=1.0,
-                                         min_samples_leaf=100, early_stopping=False,
-                                         random_state=seed)
     clf.fit(X, y, sample_weight=w)
     return from_sklearn(clf), clf
 
