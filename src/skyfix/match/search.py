@@ -192,7 +192,10 @@ def _prefetch(blocks, depth: int = 2):
     One reader: two (a pool decoding two blocks at once, the scoring thread's BLAS at one
     thread) were slower on two cores, 7 x 7 km database at 5 m, four runs each alternated (load
     1.2-1.8): search 2.41-2.66 -> 2.53-2.92 s wall, CPU 4.02-4.34 -> 4.08-4.66 s: the reading
-    waited less (0.60 -> 0.38 s) and the coarse pass, sharing its core, took longer."""
+    waited less (0.60 -> 0.38 s) and the coarse pass, sharing its core, took longer. Nor was
+    the scoring thread decoding the next block itself while the one it wanted was still being
+    decoded (work stealing, blocks still in order; 2026-11-27, four runs each alternated, load
+    0.3-1.4): search 2.03-2.13 s wall against 1.96-2.14 s."""
     import queue
     import threading
     import time
