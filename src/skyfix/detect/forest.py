@@ -15,6 +15,10 @@ down as :func:`float32_thresholds` does; NaN goes right), so the scores are the 
 which the tests check against the walk and against scikit-learn. Trees of more than 32 leaves do
 not fit the 32-bit masks; :func:`elimination_tables` returns None for such a forest and its owner
 walks it.
+
+Where the 19 ms go (116 000 pixels, one core): the ranks 5 ms, the ANDs 7.5 ms (vectorised: 70 M
+in that time), the leaf lookups 4.8 ms; 16-bit masks (every shipped tree has at most 16 leaves)
+were no faster.
 """
 
 from __future__ import annotations
