@@ -29,6 +29,7 @@ from ..errors import ParameterError
 from ..jit import njit, num_threads, prange
 from ..optional import require
 from .forest import elimination_tables, float32_thresholds, forest_scores
+from .quantile import median
 from .image import (as_gray_rgb, downscale, downscale_factor, downscale_rgb, downscale_valid,
                     fill_invalid, to_float_gray, trusted, valid_mask)
 
@@ -90,13 +91,13 @@ def sky_features(gray_s, rgb_s, valid_s):
     h, w = gray_s.shape
     g = np.asarray(gray_s, np.float32)
     anyv = bool(valid_s.any())
-    med = float(np.median(g[valid_s])) if anyv else float(np.median(g))
+    med = median(g[valid_s]) if anyv else float(np.median(g))
     med = max(med, 1.0)
     sm = cv2.GaussianBlur(g, (3, 3), 0.8)
     gx = cv2.Sobel(sm, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(sm, cv2.CV_32F, 0, 1, ksize=3)
     mag = np.sqrt(gx * gx + gy * gy)
-    mmed = float(np.median(mag[valid_s])) if anyv else float(np.median(mag))
+    mmed = median(mag[valid_s]) if anyv else float(np.median(mag))
     mmed = max(mmed, 1e-3)
     # each feature written into its plane of one array: the list, the stack and the NaN-free
     # copy of the stack were each a full copy (25 -> 16 MB of temporaries on a 1-MP frame)
@@ -113,7 +114,7 @@ def sky_features(gray_s, rgb_s, valid_s):
         s = rgb.sum(axis=2) + 3.0
         for j, ch in enumerate((0, 2)):
             cr = (rgb[..., ch] + 1.0) / s
-            X[..., 3 + j] = cr - (float(np.median(cr[valid_s])) if anyv else float(np.median(cr)))
+            X[..., 3 + j] = cr - (median(cr[valid_s]) if anyv else float(np.median(cr)))
     else:
         X[..., 3:5] = 0.0
     X[..., 8] = cv2.blur(gy, (9, 3)) / mmed

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .options import DpOptions
-from .quantile import percentile
+from .quantile import median, percentile
 
 
 def _texture(gray_s, valid_s, radius):
@@ -51,7 +51,7 @@ def texture_region(gray_s, valid_s, opt: DpOptions, sure_sky=None):
     tv = tex[valid_s] if valid_s.any() else np.ones(1)
     # the median alone collapses to ~0 when over half the image is smooth (a big clean sky,
     # smooth rendered terrain), and then nothing looks like sky: floor it by the textured part
-    med = max(float(np.median(tv)), 0.25 * float(np.percentile(tv, 90)))
+    med = max(median(tv), 0.25 * percentile(tv, 90))
     # a pixel whose texture is no more than the sensor noise's is sky-like whatever the rest
     # of the image does: in a noisy frame over smooth ground 0.35 median is below the noise
     thr = max(opt.texture_ratio * med, opt.noise_ratio * _noise_level(gray_s, valid_s))
@@ -61,7 +61,7 @@ def texture_region(gray_s, valid_s, opt: DpOptions, sure_sky=None):
     # of a stitched panorama remove the noise, and the sky then looked textured (see DpOptions)
     n_sure = np.count_nonzero(sure_sky) if sure_sky is not None and opt.sure_sky_q > 0 else 0
     if n_sure >= 100 and n_sure >= opt.sure_sky_share * np.count_nonzero(valid_s):
-        thr = max(thr, float(np.percentile(tex[sure_sky], opt.sure_sky_q)))
+        thr = max(thr, percentile(tex[sure_sky], opt.sure_sky_q))
     # log ratio to the sky threshold: < 0 looks like sky, > 0 like terrain; clipped so a few
     # wild pixels cannot dominate a column
     return np.clip(np.log((tex + 0.05 * med + 1e-6) / (thr + 1e-6)), -1.0, 1.0)
