@@ -22,6 +22,12 @@ frame, and a heap trimmed at 4 MiB faulted them in afresh every time (176 000 pa
 `heading`, 0.42 s of system time in 2.2 s). At 32 MiB: 56 000 faults, heading 2.2 -> 1.8-1.9 s,
 locate 9.1-9.7 -> 8.3-9.1 s, peak RSS 176-177 -> 176-182 MB, anonymous 102-103 -> 102-108 MB
 (three cases, one core; 16 MiB: 119 000 faults, 2.0 s; 8 MiB: 148 000, 2.1 s).
+
+The mmap threshold went from 4 to 8 MiB the same day: the refinement's band costs (8 MB each when
+the band spans a navcam frame) were mapped and unmapped for every frame, fresh zeroed pages each
+time. At 8 MiB (trim 32 MiB): heading's faults 82 000 -> 32 000, 1.9-2.0 -> 1.7-1.9 s; locate
+8.4-9.0 -> 8.2-8.9 s, peak RSS 176-178 MB, anonymous 102-104 MB; heading's peak 144-155 -> 156-158
+MB, anonymous 70-80 -> 81-84 MB (16 MiB: the same time, tilted locate's peak 184 MB).
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ M_MMAP_THRESHOLD = -3
 M_TRIM_THRESHOLD = -1
 
 #: [bytes] blocks from this size up get a mapping of their own (fixed: see the module's text)
-MMAP_THRESHOLD = 4 << 20
+MMAP_THRESHOLD = 8 << 20
 #: [bytes] free memory at the heap's top beyond which it is given back (see the module's text)
 TRIM_THRESHOLD = 32 << 20
 
