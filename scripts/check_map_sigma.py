@@ -21,12 +21,8 @@ import math
 
 import numpy as np
 
-from skyfix.dem import Dem, load_dem
-from skyfix.horizon import render_horizons
-from skyfix.pose.forward import BodyProfiler
-from skyfix.pose.map_error import correlated_height_errors, fit_map_covariance
-
-BINS, N_BODY, CAMERA_M = 1440, 360, 1.5
+from skyfix.dem import load_dem
+from skyfix.pose.map_error import map_error_scatter
 
 
 def main(argv=None):
@@ -40,41 +36,10 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=1)
     a = ap.parse_args(argv)
     dem = load_dem(a.dem)
-    x, y, yaw = a.x, a.y, a.yaw
-
-    def world_at(xs, ys, d=dem):
-        hb = render_horizons(d, xs, ys, camera_height_m=CAMERA_M, azimuth_bins=BINS)
-        return hb.elevation_deg, hb.skyline_distance_m
-
-    level = np.array([yaw, 0.0, 0.0])
-    el0 = world_at(np.array([x]), np.array([y]))[0][0]
-    centre = BodyProfiler(el0, n_bins=N_BODY)
-    q0 = centre(*level)
-    cov = fit_map_covariance(q0, world_at, x, y, yaw, 0.0, 0.0, noise_deg=0.1,
-                             dem_sigma_m=a.dem_sigma_m)
+    cov, moves = map_error_scatter(dem, a.x, a.y, a.yaw, sigma_m=a.dem_sigma_m, draws=a.draws,
+                                   rng=np.random.default_rng(a.seed))
     if cov is None:
         raise SystemExit("too few skyline bins at that position")
-    h = 1.0
-    els = world_at(np.array([x + h, x - h, x, x]), np.array([y, y, y + h, y - h]))[0]
-    p = [BodyProfiler(e, n_bins=N_BODY)(*level) for e in els]
-    cols = [(p[0] - p[1]) / (2 * h), (p[2] - p[3]) / (2 * h)]
-    for i in range(3):
-        e = np.zeros(3)
-        e[i] = 0.01
-        cols.append((centre(*(level + e)) - centre(*(level - e))) / 0.02)
-    jac = np.stack(cols + [np.ones(N_BODY)], axis=1)
-    ok = np.isfinite(jac).all(axis=1) & np.isfinite(q0)
-    gain = np.linalg.solve(jac[ok].T @ jac[ok], jac[ok].T)[:3]
-    moves = []
-    for err in correlated_height_errors(dem.z.shape, (dem.dy, dem.dx), a.dem_sigma_m, a.draws,
-                                        np.random.default_rng(a.seed)):
-        world = Dem(dem.z + err.astype(np.float32), dem.x0, dem.y0, dem.dx, dem.dy, dem.crs_wkt,
-                    dem.crs_name, body=getattr(dem, "body", None))
-        ground = float(render_horizons(world, [x], [y], azimuth_bins=4).ground_z_m[0])
-        seen = render_horizons(world, [x], [y], azimuth_bins=BINS,
-                               camera_z_m=[ground + CAMERA_M]).elevation_deg[0]
-        moves.append(gain @ (BodyProfiler(seen, n_bins=N_BODY)(*level) - q0)[ok])
-    moves = np.array(moves)
     print(f"position (radial): claimed {math.sqrt(cov[0, 0] + cov[1, 1]):.2f} m, spread "
           f"{math.sqrt(np.mean(np.sum(moves[:, :2] ** 2, axis=1))):.2f} m over {a.draws} draws")
     print(f"yaw: claimed {math.sqrt(cov[2, 2]):.3f} deg, spread "

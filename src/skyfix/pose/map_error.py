@@ -125,3 +125,55 @@ def fit_map_covariance(q, world_at, x, y, yaw_deg, pitch_deg, roll_deg, *, noise
 
 __all__ = ["MAP_DEM_SIGMA_M", "MAP_CORRELATION_M", "POSITION_STEP_M", "error_covariance",
            "fit_map_covariance", "sandwich"]
+
+
+def map_error_scatter(dem, x, y, yaw_deg, *, sigma_m, draws, rng, camera_height_m=1.5,
+                      azimuth_bins=1440, body_bins=360, noise_deg=0.1, step_m=1.0):
+    """The Monte Carlo that :func:`fit_map_covariance` is checked against: (the covariance it
+    claims (6, 6), the moves (draws, 3) of x [m], y [m] and yaw [deg]); (None, None) where too
+    few skyline bins remain.
+
+    Each draw is a world: the map ``dem`` plus a height error of this model
+    (:func:`correlated_height_errors`, ``sigma_m`` [m] rms). The profile a level camera
+    ``camera_height_m`` [m] above that world's ground sees at (x, y) [m] with grid heading
+    ``yaw_deg`` is fitted against the map by least squares (position, yaw, pitch, roll and an
+    offset), linearised with a Jacobian of its own (``step_m`` [m] and 0.01 deg central
+    differences, not the one :func:`fit_map_covariance` uses). The moves' spread is what the
+    claimed covariance must say (``scripts/check_map_sigma.py``, the tests).
+    """
+    from ..dem import Dem
+    from ..horizon import render_horizons
+    from .forward import BodyProfiler
+
+    def world_at(xs, ys):
+        hb = render_horizons(dem, xs, ys, camera_height_m=camera_height_m, azimuth_bins=azimuth_bins)
+        return hb.elevation_deg, hb.skyline_distance_m
+
+    level = np.array([yaw_deg, 0.0, 0.0])
+    centre = BodyProfiler(world_at(np.array([x]), np.array([y]))[0][0], n_bins=body_bins)
+    q0 = centre(*level)
+    cov = fit_map_covariance(q0, world_at, x, y, yaw_deg, 0.0, 0.0, noise_deg=noise_deg,
+                             dem_sigma_m=sigma_m)
+    if cov is None:
+        return None, None  # too few skyline bins there for either
+    h = step_m
+    els = world_at(np.array([x + h, x - h, x, x]), np.array([y, y, y + h, y - h]))[0]
+    p = [BodyProfiler(e, n_bins=body_bins)(*level) for e in els]
+    cols = [(p[0] - p[1]) / (2 * h), (p[2] - p[3]) / (2 * h)]
+    for i in range(3):
+        e = np.zeros(3)
+        e[i] = 0.01
+        cols.append((centre(*(level + e)) - centre(*(level - e))) / 0.02)
+    jac = np.stack(cols + [np.ones(body_bins)], axis=1)
+    ok = np.isfinite(jac).all(axis=1) & np.isfinite(q0)
+    gain = np.linalg.solve(jac[ok].T @ jac[ok], jac[ok].T)[:3]
+    moves = []
+    for err in correlated_height_errors(dem.z.shape, (dem.dy, dem.dx), sigma_m, draws, rng):
+        world = Dem(dem.z + err.astype(np.float32), dem.x0, dem.y0, dem.dx, dem.dy, dem.crs_wkt,
+                    dem.crs_name, body=getattr(dem, "body", None))
+        ground = float(render_horizons(world, [x], [y], azimuth_bins=4).ground_z_m[0])
+        seen = render_horizons(world, [x], [y], azimuth_bins=azimuth_bins,
+                               camera_z_m=[ground + camera_height_m]).elevation_deg[0]
+        moves.append(gain @ (BodyProfiler(seen, n_bins=body_bins)(*level) - q0)[ok])
+    return cov, np.array(moves)
+
