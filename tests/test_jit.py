@@ -150,6 +150,15 @@ def test_board_commands_from_the_build_match_the_jit_without_numba(built, tmp_pa
     assert fix[0]["x"] is not None
 
 
+def _python_with_kernels(code, folder):
+    """Run ``code`` (which prints ok) in a fresh Python whose kernels build is ``folder``; its
+    stderr, for what it told the user."""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
+                       env={**os.environ, "SKYFIX_BOARD_KERNELS": str(folder)})
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+    return r.stderr
+
+
 def test_types_the_build_did_not_cover_fall_back_to_the_jit(built):
     code = """
 import sys
@@ -168,12 +177,10 @@ assert 'numba' in sys.modules
 assert np.array_equal(column_prefix(np.asfortranarray(d), v), want)
 print('ok')
 """
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
-                       env={**os.environ, "SKYFIX_BOARD_KERNELS": str(built)})
-    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+    stderr = _python_with_kernels(code, built)
     # the user hears of it, once per kernel, with the types that were not covered
-    said = [ln for ln in r.stderr.splitlines() if "ahead-of-time build does not cover" in ln]
-    assert len(said) == 1 and "column_prefix" in said[0] and "float32[2d, C]" in said[0], r.stderr
+    said = [ln for ln in stderr.splitlines() if "ahead-of-time build does not cover" in ln]
+    assert len(said) == 1 and "column_prefix" in said[0] and "float32[2d, C]" in said[0], stderr
 
 
 def test_a_build_that_cannot_load_falls_back_to_the_jit(tmp_path):
@@ -191,8 +198,6 @@ v = np.ones((3, 2), bool)
 assert np.array_equal(column_prefix(d, v), np.vstack([np.zeros(2), np.cumsum(d, axis=0)]))
 print('ok')
 """
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
-                       env={**os.environ, "SKYFIX_BOARD_KERNELS": str(tmp_path)})
-    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
-    said = [ln for ln in r.stderr.splitlines() if "cannot be used" in ln]
-    assert len(said) == 1 and "ImportError" in said[0] and "board_kernels.py build" in said[0], r.stderr
+    stderr = _python_with_kernels(code, tmp_path)
+    said = [ln for ln in stderr.splitlines() if "cannot be used" in ln]
+    assert len(said) == 1 and "ImportError" in said[0] and "board_kernels.py build" in said[0], stderr
