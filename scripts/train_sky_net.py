@@ -2,9 +2,9 @@
 
     pip install -e ".[train]"            # PyTorch (CPU) and onnx: training only
     scripts/make_sky_sims.sh SIMS        # simulated frames (seeds 901-905, never used to evaluate)
-    for K in 0 1 2 3 4; do               # five members, each with one fold held out
-      python scripts/train_sky_net.py --sims SIMS --fold K --out CV/fold_K.onnx
-    done
+    S="--sims SIMS/alps_cond --sims SIMS/alps_mars_ref --sims SIMS/glacier_mars_occl \
+       --sims SIMS/sierra_clut --sims SIMS/sierra_ref"
+    python scripts/train_sky_net.py $S --all-folds CV   # five members, each with one fold held out
     python scripts/train_sky_net.py --ensemble CV/fold_?.pt --out CV/ensemble.onnx
     python benchmarks/bench_detect.py --methods net --no-all --data ../shared/data/marsscapes-dev \
         --data ../shared/data/web-dev --cv-net CV --write-calibration CV/ensemble.json
@@ -25,43 +25,64 @@ mosaics of one site never sit on both sides) and an Earth photo by itself, and d
 groups round-robin (:func:`folds`); simulated frames are never held out (they are not dev
 images).
 
-Recipe (each member): 1400 steps of AdamW (one-cycle, peak lr 3e-3, weight decay 1e-4), batches
+Recipe (each member): 2400 steps of AdamW (one-cycle, peak lr 3e-3, weight decay 1e-4), batches
 of 8 crops of 224 x 320 working pixels, seed 0; an image is drawn with probability 0.45 Mars,
-0.35 Earth, 0.2 simulated (Mars mosaics without sky twice as often as the others); each crop is
-taken at the detector's working scale times exp(U(-0.45, 0.45)), from the top of the image half
+0.35 Earth, 0.2 simulated (Mars mosaics without sky four times as often as the others); each crop
+is taken at the detector's working scale times exp(U(-0.45, 0.45)), from the top of the image half
 of the time, flipped left-right half of the time, rolled by up to 6 deg 30 % of the time, then
 degraded at full resolution: grey (20 %), white balance x U(0.75, 1.25) per channel (80 %),
 exposure x U(0.5, 1.7) and gamma U(0.65, 1.5) (80 %), a veil of haze of 10-50 % (25 %), blur
 (30 %), noise (30 %), JPEG quality 30-95 (30 %); loss: cross-entropy on labelled pixels, three
 times the weight within 2 working pixels of a sky/terrain boundary and twice on the labels'
-distant mountains (hazy relief: what the detector must not call sky). 13-25 minutes per member
-on two shared cores (torch 2.13 CPU). The network (:class:`SkyNetModel`): a U-Net of 16-32-48-64
-channels with two dilated convolutions (8, 16) at 1/16 scale, 0.3 M parameters, 1.2 MB as ONNX
-per member.
+distant mountains (hazy relief: what the detector must not call sky). The network
+(:class:`SkyNetModel`): a U-Net of 16-32-48-64 channels with two dilated convolutions (8, 16) at
+1/16 scale, 0.3 M parameters, 1.2 MB as ONNX per member.
 
-A direction measured, not shipped (2026-11-26, two folds, one seed): fold 0's member retrained
-with ``--steps 2400 --nosky-boost 4`` and the 72 frames of ``scripts/make_sky_sims.sh`` as the
-simulator renders them now (``--sims`` once per set), scored on fold 0's held-out images with the
-shipped ensemble's calibration, against the shipped member 0 (``NetOptions.member=0``): Mars
-false skyline 10.7 -> 5.5 %, missed 5.8 -> 3.5 %, 0.81 -> 0.73 px; the two no-sky mosaics 34.0
--> 19.0 % claimed (365_2 16 -> 0.1 %, 463_1 99 -> 87 %); Earth unchanged (0.37 -> 0.41 px); but
-387_1 lost its skyline (0.88 px, 23 % missed -> none found). Fold 1 the same way: Mars false
-15.3 -> 12.0 %, missed 9.2 -> 11.2 %, 1.27 -> 0.95 px; its three no-sky mosaics 53.3 -> 42.8 %
-claimed (371_2 33 -> 0 %, 388_2 97 -> 97 %, 465_2 0 -> 4 %); Earth 1.49 -> 1.01 px, missed 0.4 ->
-1.2 %. Longer training, the newer sims and the no-sky weight are confounded here; every fold is
-needed before it can ship.
+``--all-folds CV`` trains the five members side by side from one stream of crops: a crop of an
+image of fold f serves the four members that may see it (:func:`shared_batches`), so the
+augmentation, which bounds training, is done once instead of four times. The shipped ensemble
+(2026-11-27) was trained so on a lent H100 from a pack (below): ``--pack PACK --all-folds CV
+--device cuda --workers 7 --threads 1``, 5 min 13 s for the five members, side by side with a
+second recipe. GPU arithmetic is not bitwise the CPU's, so a CPU run gives a statistically equal
+ensemble, not the same bytes. ``--fold K`` trains one member alone (the recipe before
+2026-11-27: 1400 steps, ``--steps 1400 --nosky-boost 2``, 13-25 minutes a member on two cores).
+
+Chosen among four recipes, each trained the same way (2400 steps, the 72 frames of
+``make_sky_sims.sh``, seed 0), each image scored by the member that never saw it
+(``bench_detect.py --methods net --cv-net``, calibration and ``min_confidence`` from the other
+folds), Mars dev set / Earth photos:
+
+=========================== ======== ====== ======= ======== ============= ========
+recipe                      Mars px  <=3px  false   missed   no-sky claim  Earth px
+=========================== ======== ====== ======= ======== ============= ========
+as before (1400 steps, x2)   8.38    88.5 %  14.3 %   7.4 %     28.8 %       0.96
+x2 (2400 steps)              1.88    92.1 %  14.0 %   9.4 %     33.1 %       0.93
+**x4 (shipped)**             1.29    93.8 %   5.8 %  11.6 %     13.4 %       0.89
+x8                           9.79    88.0 %   9.6 %   9.6 %     24.2 %       1.10
+x4, distant mountains x4     5.04    90.5 %  13.4 %  13.3 %     31.3 %       1.07
+=========================== ======== ====== ======= ======== ============= ========
+
+("x4": no-sky mosaics drawn four times as often; the last row ``--mountain-weight 4``.) Without
+the calibrated cut the four are close (Mars false 13.8-19.5 %, no-sky mosaics 31-41 % claimed):
+the shipped one's lead is in how well its confidence sorts its own columns. The choice among four
+was made on these same held-out figures, so they flatter it a little. Held out in ``fuse``
+(``benchmarks/choose_fuse_weight.py``, which also re-chose ``w_net`` inside the folds: 1 again),
+Mars false skyline 7.1 -> 5.2 %, missed 7.2 -> 9.3 %, no-sky mosaics 17.8 -> 12.8 % claimed;
+Earth 1.04 -> 0.82 px.
+
+The no-sky weight was first seen to help on two folds, one member at a time on the CPU
+(2026-11-26: fold 0's Mars false skyline 10.7 -> 5.5 %, fold 1's 15.3 -> 12.0 %), with longer
+training and newer sims confounded; the table above separates it.
 
 On a machine without ``../shared`` (a lent GPU machine): ``--write-pack DIR`` (with ``--sims``)
 writes the labelled images into one folder of 40 MB (JPEG quality 90, labels as PNG marking where
 the image holds no data), ``--pack DIR`` trains from it; ``--device cuda --workers N`` makes the
-crops in N spawned processes (batch k from the random stream (seed, k), whatever N). Measured
-there (2026-11-27, one H100, 16 cores): the five members side by side, 3 workers each, ran 0.24 s
-a step, all of it the augmentation on the CPU (~90 ms a crop on those cores), so 2400 steps do not
-fit one 10-minute call. Five members of 1000 steps with ``--nosky-boost 4`` and the 72 frames
-(``bench_detect.py --methods net --cv-net``) were worse than the shipped ensemble and were not
-shipped: Mars 13.0 px, 73.9 % within 3 px, false 20.6 %, no-sky mosaics 42.4 % claimed (shipped
-8.38 px, 88.5 %, 14.3 %, 28.8 %); Earth 1.33 px, 37/38 photos within 5 px (shipped 0.96 px, 36/38).
-Fewer steps, the JPEG copy and the other random stream are confounded in that figure.
+crops in N spawned processes (batch or chunk k from the random stream (seed, k), whatever N).
+Measured there (one H100, 16 cores): five ``--fold K`` processes side by side, 3 workers each,
+ran 0.24 s a step, all of it the augmentation (~90 ms a crop on those cores); ``--all-folds``
+with 7 workers, two recipes side by side, 0.13 s a step. Five members of only 1000 steps (the
+separate processes, which is what fitted one 10-minute call) were worse than the ensemble of
+before: Mars 13.0 px, no-sky mosaics 42.4 % claimed.
 """
 
 from __future__ import annotations
@@ -304,9 +325,9 @@ def build_model():
     return SkyNetModel()
 
 
-def loss_fn(logit, y):
+def loss_fn(logit, y, mountain_weight=MOUNTAIN_WEIGHT):
     """Cross-entropy on labelled pixels, 3x the weight where a 5 x 5 window holds both labels and
-    ``MOUNTAIN_WEIGHT`` x on distant mountains (hazy relief, the sky's lookalike)."""
+    ``mountain_weight`` x on distant mountains (hazy relief, the sky's lookalike)."""
     import torch
     import torch.nn.functional as F
 
@@ -315,15 +336,17 @@ def loss_fn(logit, y):
     sky = F.conv2d(((y == 1) & known).float()[:, None], k, padding=2)
     ter = F.conv2d(((y != 1) & known).float()[:, None], k, padding=2)
     wgt = (1.0 + 2.0 * ((sky > 0) & (ter > 0)).float()[:, 0]) * known.float()
-    wgt = wgt * torch.where(y == MOUNTAIN, MOUNTAIN_WEIGHT, 1.0)
+    wgt = wgt * torch.where(y == MOUNTAIN, mountain_weight, 1.0)
     loss = F.binary_cross_entropy_with_logits(logit[:, 0], (y == 1).float(), reduction="none")
     return (loss * wgt).sum() / wgt.sum().clamp(min=1)
 
 
 def _batch(images, p, batch, rng):
-    """One training batch (x, labels) as arrays, images drawn with probabilities ``p``."""
-    xs, ys = zip(*(sample(images[i][3], images[i][4], rng) for i in rng.choice(len(images), batch, p=p)))
-    return np.stack(xs), np.stack(ys)
+    """One training batch (x, labels, index of each crop's image) as arrays, images drawn with
+    probabilities ``p``."""
+    idx = rng.choice(len(images), batch, p=p)
+    xs, ys = zip(*(sample(images[i][3], images[i][4], rng) for i in idx))
+    return np.stack(xs), np.stack(ys), idx
 
 
 _WORKER = {}
@@ -341,15 +364,20 @@ def _worker_batch(step):
     return _batch(w["images"], w["p"], w["batch"], np.random.default_rng([w["seed"], step]))
 
 
-def _batches(images, p, batch, seed, steps, workers):
-    """The training batches: made here from one random stream (``workers`` 0, the shipped
-    recipe), or by ``workers`` processes, batch ``k`` from the stream ``(seed, k)``, so that a GPU
-    is not kept waiting on the augmentation (~45 ms a crop on one core). The workers are spawned,
-    not forked: a fork after OpenCV's or PyTorch's threads have started can deadlock (it did)."""
+def _batches(images, p, batch, seed, steps, workers, *, index=False, keyed=False):
+    """The training batches (x, labels; with ``index`` also each crop's image): made here from one
+    random stream (``workers`` 0, the shipped recipe), or by ``workers`` processes, batch ``k``
+    from the stream ``(seed, k)``, so that a GPU is not kept waiting on the augmentation (~45 ms a
+    crop on one core); ``keyed``: batch ``k`` from that stream also with ``workers`` 0. ``steps``
+    None: without end. The workers are spawned, not forked: a fork after OpenCV's or PyTorch's
+    threads have started can deadlock (it did)."""
+    import itertools
+
+    cut = slice(None) if index else slice(2)
     if workers <= 0:
         rng = np.random.default_rng(seed)
-        for _ in range(steps):
-            yield _batch(images, p, batch, rng)
+        for k in range(steps) if steps is not None else itertools.count():
+            yield _batch(images, p, batch, np.random.default_rng([seed, k]) if keyed else rng)[cut]
         return
     import collections
     import multiprocessing
@@ -357,32 +385,75 @@ def _batches(images, p, batch, seed, steps, workers):
     with multiprocessing.get_context("spawn").Pool(
             workers, _worker_init, (images, p, batch, seed)) as pool:
         ahead = collections.deque()
-        for k in range(steps):
-            while len(ahead) < min(4 * workers, steps - k):  # bounded: batches are 11 MB each
+        for k in range(steps) if steps is not None else itertools.count():
+            left = steps - k if steps is not None else 4 * workers
+            while len(ahead) < min(4 * workers, left):  # bounded: batches are 11 MB each
                 ahead.append(pool.apply_async(_worker_batch, (k + len(ahead),)))
-            yield ahead.popleft().get()
+            yield ahead.popleft().get()[cut]
+
+
+def draw_probabilities(images, weights=(0.45, 0.35, 0.2), nosky_boost=2.0, sim_scale=1.0):
+    """How often each image is drawn: ``weights`` shared by Mars, Earth and simulated images,
+    Mars mosaics without sky ``nosky_boost`` times as often as the others, the simulated images'
+    share times ``sim_scale`` before normalising (see :func:`shared_batches`)."""
+    kinds = np.array([im[2] for im in images])
+    p = np.zeros(len(images))
+    for kind, w in zip(("mars", "web", "sim"), weights):
+        if (kinds == kind).any():
+            p[kinds == kind] = w * (sim_scale if kind == "sim" else 1.0) / (kinds == kind).sum()
+    nosky = np.array([im[2] == "mars" and not (im[4] == 1).any() for im in images])
+    p[nosky] *= nosky_boost
+    return p / p.sum()
+
+
+def shared_batches(images, fold_of_image, k, *, batch, seed, workers, chunk=8,
+                   weights=(0.45, 0.35, 0.2), nosky_boost=2.0):
+    """Batches for the ``k`` fold members trained side by side from one stream of crops: a crop
+    of an image of fold f goes to every member but f's (a simulated frame, fold -1, to all), so
+    each crop is made once for four members instead of once for each: the augmentation, not the
+    network, bounds training on a GPU machine. Yields, step after step, a list of ``k`` (x,
+    labels). Each member still sees the recipe's mix: a held-out fold takes 1/k of the real images
+    away from a member but no simulated frame, so the stream draws those ``1 - 1/k`` as often.
+    The crops come in chunks of ``chunk`` from :func:`_batches`, so they do not depend on
+    ``workers`` either."""
+    import collections
+
+    p = draw_probabilities(images, weights, nosky_boost, sim_scale=1.0 - 1.0 / k)
+    fold = np.asarray(fold_of_image)
+    queues = [collections.deque() for _ in range(k)]
+    chunks = _batches(images, p, chunk, seed, None, workers, index=True, keyed=True)
+    try:
+        while True:
+            for m in range(k):
+                while len(queues[m]) < batch:
+                    x, y, idx = next(chunks)
+                    for j, i in enumerate(idx):
+                        for q in range(k):
+                            if fold[i] != q:
+                                queues[q].append((x[j], y[j]))
+            out = []
+            for m in range(k):
+                xs, ys = zip(*(queues[m].popleft() for _ in range(batch)))
+                out.append((np.stack(xs), np.stack(ys)))
+            yield out
+    finally:
+        chunks.close()
 
 
 def train(images, *, steps, seed, batch=8, lr=3e-3, weights=(0.45, 0.35, 0.2), nosky_boost=2.0,
-          device="cpu", workers=0, log=sys.stderr):
+          device="cpu", workers=0, mountain_weight=MOUNTAIN_WEIGHT, log=sys.stderr):
     import torch
 
     torch.manual_seed(seed)
     net = build_model().to(device)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.1)
-    kinds = np.array([im[2] for im in images])
-    p = np.zeros(len(images))
-    for kind, w in zip(("mars", "web", "sim"), weights):
-        if (kinds == kind).any():
-            p[kinds == kind] = w / (kinds == kind).sum()
-    nosky = np.array([im[2] == "mars" and not (im[4] == 1).any() for im in images])
-    p[nosky] *= nosky_boost
-    p /= p.sum()
+    p = draw_probabilities(images, weights, nosky_boost)
     t0, run = time.time(), None
     net.train()
     for step, (x, y) in enumerate(_batches(images, p, batch, seed, steps, workers)):
-        loss = loss_fn(net(torch.from_numpy(x).to(device)), torch.from_numpy(y).to(device))
+        loss = loss_fn(net(torch.from_numpy(x).to(device)), torch.from_numpy(y).to(device),
+                       mountain_weight)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -391,6 +462,58 @@ def train(images, *, steps, seed, batch=8, lr=3e-3, weights=(0.45, 0.35, 0.2), n
         if step % 100 == 0 or step == steps - 1:
             print(f"step {step}: loss {run:.4f} ({time.time() - t0:.0f} s)", file=log, flush=True)
     return net.cpu().eval()
+
+
+def train_members(images, fold_of_image, k, *, steps, seed, out_dir: Path, meta: dict, batch=8,
+                  lr=3e-3, nosky_boost=2.0, device="cpu", workers=0, checkpoint_every=0,
+                  mountain_weight=MOUNTAIN_WEIGHT, log=sys.stderr):
+    """The ``k`` fold members side by side from one stream of crops (:func:`shared_batches`),
+    each as :func:`train` makes it (its own optimiser and one-cycle schedule, the same initial
+    weights). Every member is written to ``out_dir/fold_K.{onnx,json,pt}`` at the end and every
+    ``checkpoint_every`` steps (0: only at the end; a checkpoint's ``steps_done`` says how far it
+    got, so that a run cut short still leaves members to look at)."""
+    import torch
+
+    nets, opts, scheds = [], [], []
+    for _ in range(k):
+        torch.manual_seed(seed)
+        net = build_model().to(device)
+        opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
+        nets.append(net.train())
+        opts.append(opt)
+        scheds.append(torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps,
+                                                          pct_start=0.1))
+    held = {m: sorted(im[0] for im, f in zip(images, fold_of_image) if f == m) for m in range(k)}
+
+    def save(done):
+        for m, net in enumerate(nets):
+            out = out_dir / f"fold_{m}.onnx"
+            copy = build_model()
+            copy.load_state_dict({n: t.cpu() for n, t in net.state_dict().items()})
+            export(copy.eval(), out, {**meta, "fold": m, "held_out": held[m],
+                                      "trained_on": int(sum(f != m for f in fold_of_image)),
+                                      "steps_done": done})
+            torch.save(copy.state_dict(), out.with_suffix(".pt"))
+
+    t0, run = time.time(), [None] * k
+    stream = shared_batches(images, fold_of_image, k, batch=batch, seed=seed, workers=workers,
+                            nosky_boost=nosky_boost)
+    for step in range(steps):
+        for m, (x, y) in enumerate(next(stream)):
+            loss = loss_fn(nets[m](torch.from_numpy(x).to(device)), torch.from_numpy(y).to(device),
+                           mountain_weight)
+            opts[m].zero_grad()
+            loss.backward()
+            opts[m].step()
+            scheds[m].step()
+            run[m] = loss.item() if run[m] is None else 0.98 * run[m] + 0.02 * loss.item()
+        if step % 100 == 0 or step == steps - 1:
+            print(f"step {step}: loss " + " ".join(f"{r:.4f}" for r in run)
+                  + f" ({time.time() - t0:.0f} s)", file=log, flush=True)
+        if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
+            save(step + 1)
+    stream.close()
+    save(steps)
 
 
 def export(net, out: Path, meta: dict) -> None:
@@ -437,14 +560,17 @@ def main(argv=None):
     ap.add_argument("--sims", action="append", default=[], help="folder of simulated frames (repeatable)")
     ap.add_argument("--out", default=str(ROOT / "src" / "skyfix" / "models" / "sky_net.onnx"))
     ap.add_argument("--overwrite", action="store_true")
-    ap.add_argument("--steps", type=int, default=1400)
+    ap.add_argument("--steps", type=int, default=2400)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--folds", type=int, default=5)
     ap.add_argument("--fold", type=int, default=-1, help="leave this fold out (-1: train on all)")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--nosky-boost", type=float, default=2.0,
-                    help="how much more often a Mars mosaic without sky is drawn (default 2, the "
+    ap.add_argument("--nosky-boost", type=float, default=4.0,
+                    help="how much more often a Mars mosaic without sky is drawn (default 4, the "
                          "shipped recipe)")
+    ap.add_argument("--mountain-weight", type=float, default=MOUNTAIN_WEIGHT,
+                    help="loss weight of the labels' distant mountains (hazy relief; default "
+                         f"{MOUNTAIN_WEIGHT:g}, the shipped recipe)")
     ap.add_argument("--pack", help="read the labelled images from this folder (see --write-pack) "
                                    "instead of --mars, --web and --sims")
     ap.add_argument("--write-pack", metavar="DIR",
@@ -454,6 +580,11 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=0,
                     help="processes making the training crops (0: the training process itself, "
                          "the shipped recipe's random stream)")
+    ap.add_argument("--all-folds", metavar="DIR",
+                    help="train every fold's member side by side from one stream of crops (each "
+                         "crop made once for every member that may see it) into DIR/fold_K.onnx")
+    ap.add_argument("--checkpoint-every", type=int, default=0, metavar="STEPS",
+                    help="with --all-folds: also write the members every STEPS steps")
     ap.add_argument("--ensemble", nargs="+", default=[], metavar="FOLD.pt",
                     help="join these trained members (fold_K.pt) into --out instead of training")
     args = ap.parse_args(argv)
@@ -465,7 +596,13 @@ def main(argv=None):
         print(f"wrote {len(images)} images into {args.write_pack}", file=sys.stderr)
         return
     out = Path(args.out)
-    if out.exists() and not args.overwrite:
+    if args.all_folds:
+        out = Path(args.all_folds) / "fold_0.onnx"
+        if any(out.parent.glob("fold_*.onnx")) and not args.overwrite:
+            raise SystemExit(f"{out.parent} holds fold members: pass --overwrite to replace them")
+        if args.folds < 2:
+            raise SystemExit("--all-folds needs --folds of 2 or more")
+    elif out.exists() and not args.overwrite:
         raise SystemExit(f"{out} exists: pass --overwrite to replace it")
     if not out.parent.is_dir():
         raise SystemExit(f"no folder {out.parent}")
@@ -480,7 +617,9 @@ def main(argv=None):
         meta = {"channels": 5, "members": [p.stem for p in members],
                 "held_out_by_member": {p.stem: m.get("held_out", []) for p, m in zip(members, metas)},
                 "steps": metas[0].get("steps"), "seed": metas[0].get("seed"),
-                "sims": metas[0].get("sims"), "torch": torch.__version__}
+                "sims": metas[0].get("sims"), "torch": torch.__version__,
+                **{k: metas[0][k] for k in ("nosky_boost", "mountain_weight", "shared_stream",
+                                            "device", "torch_trained") if k in metas[0]}}
         old = out.with_suffix(".json")
         if old.is_file() and json.loads(old.read_text()).get("calibration"):
             meta["calibration"] = json.loads(old.read_text())["calibration"]
@@ -498,6 +637,20 @@ def main(argv=None):
     if not images:
         raise SystemExit("no labelled images found")
     fold_of = folds({im[1] for im in images}, args.folds)
+    if args.all_folds:
+        t0 = time.time()
+        meta = {"channels": 5, "steps": args.steps, "seed": args.seed, "folds": args.folds,
+                "nosky_boost": args.nosky_boost, "mountain_weight": args.mountain_weight,
+                "sims": sims, "device": args.device,
+                "workers": args.workers, "shared_stream": True, "torch": torch.__version__,
+                "torch_trained": torch.__version__}
+        train_members(images, [fold_of[im[1]] for im in images], args.folds, steps=args.steps,
+                      seed=args.seed, out_dir=out.parent, meta=meta, nosky_boost=args.nosky_boost,
+                      device=args.device, workers=args.workers,
+                      checkpoint_every=args.checkpoint_every, mountain_weight=args.mountain_weight)
+        print(f"wrote {args.folds} members into {out.parent} in {time.time() - t0:.0f} s",
+              file=sys.stderr)
+        return
     train_set = [im for im in images if args.fold < 0 or fold_of[im[1]] != args.fold]
     held = sorted(im[0] for im in images if args.fold >= 0 and fold_of[im[1]] == args.fold)
     print(f"training on {len(train_set)} of {len(images)} images"
@@ -505,9 +658,9 @@ def main(argv=None):
           file=sys.stderr)
     t0 = time.time()
     net = train(train_set, steps=args.steps, seed=args.seed, nosky_boost=args.nosky_boost,
-                device=args.device, workers=args.workers)
+                device=args.device, workers=args.workers, mountain_weight=args.mountain_weight)
     meta = {"channels": 5, "steps": args.steps, "seed": args.seed, "folds": args.folds,
-            "nosky_boost": args.nosky_boost,
+            "nosky_boost": args.nosky_boost, "mountain_weight": args.mountain_weight,
             "fold": args.fold, "held_out": held,
             "sims": sims,
             "device": args.device, "workers": args.workers,

@@ -57,3 +57,34 @@ def test_batches_are_the_same_whatever_the_number_of_workers():
     # and the crops hold labelled pixels of both kinds, from the images drawn
     ys = np.stack([y for _, y in one])
     assert (ys == 1).any() and (ys == 0).any()
+
+
+def test_members_side_by_side_never_see_their_held_out_fold_and_keep_the_recipes_mix():
+    images = _images() * 4  # 12 images: mars, web, sim, four times over
+    fold_of = [0, 1, -1, 1, 2, -1, 2, 0, -1, 0, 2, -1]  # sims (every third) are never held out
+    k, batch = 3, 4
+    stream = T.shared_batches(images, fold_of, k, batch=batch, seed=5, workers=0, chunk=3)
+    drawn = {m: [] for m in range(k)}
+    p = T.draw_probabilities(images, sim_scale=1 - 1 / k)
+    for _ in range(60):
+        step = next(stream)
+        assert len(step) == k
+        for m, (x, y) in enumerate(step):
+            assert x.shape[0] == batch and y.shape == (batch, *T.CROP)
+            drawn[m].append(x)
+    stream.close()
+    # the crops a member got are the stream's, minus its fold: compare with the stream itself
+    chunks = T._batches(images, p, 3, 5, 200, 0, index=True, keyed=True)
+    made = [(x[j], i) for x, _, idx in chunks for j, i in enumerate(idx)]
+    for m in range(k):
+        mine = [(xx, i) for xx, i in made if fold_of[i] != m][: 60 * batch]
+        got = np.concatenate(drawn[m])
+        assert all(np.array_equal(a, b) for a, (b, _) in zip(got, mine))  # in stream order
+        kinds = [images[i][2] for _, i in mine]
+        assert all(fold_of[i] != m for _, i in mine)
+        # the simulated share stays near the recipe's 0.2 (0.2 exactly in expectation)
+        assert 0.1 < kinds.count("sim") / len(kinds) < 0.3
+    # and a worker pool gives the same chunks
+    one = next(T.shared_batches(images, fold_of, k, batch=batch, seed=5, workers=2, chunk=3))
+    for (x1, y1), x0 in zip(one, (drawn[m][0] for m in range(k))):
+        assert np.array_equal(x1, x0)
