@@ -50,11 +50,19 @@ def test_a_known_skyline_is_found():
 
 
 def test_clouds_above_a_ridge_stay_out_of_the_skyline():
+    """Five cloud fields (not one, which a model can pass by luck): pooled, few columns missed and
+    nearly all within 3 px. The network shipped before 2026-11-27 lost one scene whole (seed 5:
+    half the columns missed), 9.8 % missed pooled; the current one 1.5 %."""
     c = np.arange(420)
     rows = 120 + 15 * np.sin(c / 35.0)
-    img, truth = colour_scene(rows, height=240, seed=3, clouds=True)
-    s = score_rows(detect_skyline(img, method="net"), truth)
-    assert s["missed_rate"] < 0.05 and s["within_3px"] > 0.9
+    missed, within = [], []
+    for seed in (3, 4, 5, 6, 7):
+        img, truth = colour_scene(rows, height=240, seed=seed, clouds=True)
+        s = score_rows(detect_skyline(img, method="net"), truth)
+        missed.append(s["missed_rate"])
+        within.append(s["within_3px"])
+    assert np.mean(missed) < 0.04 and np.mean(within) > 0.95
+    assert max(missed) < 0.2  # no scene lost
 
 
 def test_the_same_image_gives_the_same_rows():
@@ -90,7 +98,8 @@ def test_hazy_relief_without_sky_is_no_skyline_for_a_member_that_never_saw_it():
 
 #: the share of the no-sky mosaics' columns claimed, held out (benchmarks/bench_detect.py --cv-net)
 #: plus a margin; see the README's detection row
-NO_SKY_CLAIMED_MAX = 0.25  # measured 0.194 at the shipped min_confidence 0.3 (target 0.01: not met)
+NO_SKY_CLAIMED_MAX = 0.16  # measured 0.113 at the shipped min_confidence 0.3 (target 0.01: not
+#                            met; 388_2 97 %, 404_2 31 %); the network before 2026-11-27: 0.194
 
 
 def test_image_conversions_and_refusals():

@@ -123,14 +123,16 @@ class DpOptions:
         out, 1 is the ``fuse`` method. The region term then sees the network's wide context
         beside the pixel classifier and the texture, and the path keeps ``dp``'s edges, its
         confidence and its refinement. Cross-validated (``benchmarks/bench_detect.py --cv``: the
-        sky classifier per fold, the network member that held the fold out), ``dp`` -> ``fuse``:
-        Mars dev set 1.08 -> 1.13 px, false skyline 12.9 -> 7.1 %, missed 4.2 -> 7.2 %, no-sky
-        mosaics 34.8 -> 17.8 % claimed; Earth photos 8.36 -> 1.04 px, 87.9 -> 95.5 % within 3 px,
-        missed 23.5 -> 0.7 %. Weights 0.25, 0.5, 1 and 2 tried: every fold's training folds
-        chose 1 (least share of wrong columns, Mars and Earth averaged); a ``net_sky_clip`` of
-        0.4 or 0.75 lost most of the Earth gain. The price is on simulated Mars frames, whose
-        smooth rendered ground the network calls sky: COND 2.5 -> 9.6 px (24.8 % missed), and on
-        simulated wide-camera frames (0.17 -> 1.52 px), so ``dp`` stays the default. Tried, not
+        sky classifier per fold, the network member that held the fold out; the network as
+        retrained 2026-11-27), ``dp`` -> ``fuse``: Mars dev set 1.08 -> 1.13 px, false skyline
+        12.9 -> 5.2 %, missed 4.2 -> 9.3 %, no-sky mosaics 34.8 -> 12.8 % claimed; Earth photos
+        8.36 -> 0.82 px, 87.9 -> 96.6 % within 3 px, missed 23.5 -> 1.0 %. Weights 0, 0.5, 1 and
+        2 tried (``benchmarks/choose_fuse_weight.py``): every fold's training folds chose 1 (least
+        share of wrong columns, Mars and Earth averaged), as with the earlier network; a
+        ``net_sky_clip`` of 0.4 or 0.75 lost most of the Earth gain. The price is on simulated
+        Mars frames, whose smooth rendered ground the network calls sky: COND 2.5 -> 6.3 px
+        (14.2 % missed; 9.6 px with the earlier network), and on simulated wide-camera frames
+        (0.17 -> 0.53 px), so ``dp`` stays the default. Tried, not
         taken: ignoring the network's sky evidence where the pixel classifier is sure of terrain
         (log-odds below -1 or -2 nats; on the dev images the network never calls such pixels
         sky, on simulated Mars frames 13-17 % of them) won back part of COND (9.6 -> 6.3-6.8 px)
