@@ -66,7 +66,7 @@ x4, distant mountains x4     5.04    90.5 %  13.4 %  13.3 %     31.3 %       1.0
 the calibrated cut the four are close (Mars false 13.8-19.5 %, no-sky mosaics 31-41 % claimed):
 the shipped one's lead is in how well its confidence sorts its own columns. The choice among four
 was made on these same held-out figures, so they flatter it a little. Held out in ``fuse``
-(``benchmarks/choose_fuse_weight.py``, which also re-chose ``w_net`` inside the folds: 1 again),
+(``benchmarks/choose_fuse_options.py``, which also re-chose ``w_net`` inside the folds: 1 again),
 Mars false skyline 7.1 -> 5.2 %, missed 7.2 -> 9.3 %, no-sky mosaics 17.8 -> 12.8 % claimed;
 Earth 1.04 -> 0.82 px.
 

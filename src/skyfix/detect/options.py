@@ -127,7 +127,7 @@ class DpOptions:
         retrained 2026-11-27), ``dp`` -> ``fuse``: Mars dev set 1.08 -> 1.13 px, false skyline
         12.9 -> 5.2 %, missed 4.2 -> 9.3 %, no-sky mosaics 34.8 -> 12.8 % claimed; Earth photos
         8.36 -> 0.82 px, 87.9 -> 96.6 % within 3 px, missed 23.5 -> 1.0 %. Weights 0, 0.5, 1 and
-        2 tried (``benchmarks/choose_fuse_weight.py``): every fold's training folds chose 1 (least
+        2 tried (``benchmarks/choose_fuse_options.py``): every fold's training folds chose 1 (least
         share of wrong columns, Mars and Earth averaged), as with the earlier network; a
         ``net_sky_clip`` of 0.4 or 0.75 lost most of the Earth gain. The price is on simulated
         Mars frames, whose smooth rendered ground the network calls sky: COND 2.5 -> 6.3 px

@@ -1,25 +1,29 @@
-"""The weight of the sky network in ``fuse``'s region term (``DpOptions.w_net``), chosen inside the
-cross-validation.
+"""``fuse``'s options (the weight of the sky network in its region term, ``DpOptions.w_net``, and
+any other ``DpOptions`` field), chosen inside the cross-validation.
 
-    python benchmarks/choose_fuse_weight.py --cv-sim SIMS [--weights 0,0.5,1,2] [--json OUT]
+    python benchmarks/choose_fuse_options.py --cv-sim SIMS [--set w_net=0,0.5,1,2] \
+        [--set min_confidence=0.05,0.15] [--json OUT]
 
 Every image of the two dev sets (``../shared/data/marsscapes-dev``, ``web-dev``) is detected with
-``dp`` plus ``w`` times the network's log-odds, for each candidate ``w``, by the sky classifier
+``dp`` and each candidate set of options (every combination of the ``--set`` values; ``w_net``
+times the network's log-odds in the region term, 1 being ``fuse``), by the sky classifier
 trained without the image's fold (``bench_detect.site_fold_models``: the Mars mosaics and the
 simulated frames of SIMS as ``scripts/make_sky_sims.sh`` writes them) and by the network member
-that held the image out (the shipped model's ``held_out_by_member``). Then, fold by fold, the weight is chosen on the other
-four folds alone: the fewest wrong columns (claimed but more than 3 px off, claimed where the truth
-has none, or missed), Mars and Earth averaged; the held-out table scores each fold with the weight
-its four other folds chose. So the figure printed last is the one a user can expect of the weight
-selection itself, not of the best weight in hindsight (printed too, per weight).
+that held the image out (the shipped model's ``held_out_by_member``). Then, fold by fold, the options are chosen on the
+other four folds alone: the fewest wrong columns (claimed but more than 3 px off, claimed where the truth
+has none, or missed), Mars and Earth averaged; the held-out table scores each fold with the options
+its four other folds chose. So the figure printed last is the one a user can expect of the
+selection itself, not of the best candidate in hindsight (printed too, per candidate).
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,8 +32,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_detect import dev_pairs, site_fold_models  # noqa: E402
 from cv_net import NO_SKY  # noqa: E402
 
-from skyfix.detect import combine_scores, detect_skyline, score_skyline  # noqa: E402
+from skyfix.detect import DpOptions, combine_scores, detect_skyline, score_skyline  # noqa: E402
 from skyfix.detect.net import DEFAULT_NET  # noqa: E402
+from skyfix.detect.options import PRESETS, check_options  # noqa: E402
+from skyfix.errors import ParameterError  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -57,10 +63,26 @@ def main(argv=None):
     ap.add_argument("--data", action="append", default=[],
                     help="labelled image folders (default: marsscapes-dev and web-dev)")
     ap.add_argument("--cv-sim", required=True, help="training sims (scripts/make_sky_sims.sh SIMS)")
-    ap.add_argument("--weights", default="0,0.25,0.5,1,2", help="candidate w_net values")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=V1,V2,...",
+                    help="candidate values of a DpOptions field (repeatable; every combination is "
+                         "tried; default w_net=0,0.25,0.5,1,2)")
     ap.add_argument("--json", default="", help="write every image's scores here")
     args = ap.parse_args(argv)
-    weights = [float(w) for w in args.weights.split(",")]
+    grid = {}
+    for kv in args.set or ["w_net=0,0.25,0.5,1,2"]:
+        key, _, vals = kv.partition("=")
+        if not hasattr(DpOptions(), key) or not vals:
+            raise SystemExit(f"--set {kv}: give a DpOptions field and its values, e.g. w_net=0.5,1")
+        kind = type(getattr(DpOptions(), key))
+        # bool("False") is True: booleans are spelt out
+        grid[key] = [v.lower() in ("1", "true", "yes") if kind is bool else kind(v)
+                     for v in vals.split(",")]
+    cands = [dict(zip(grid, c)) for c in itertools.product(*grid.values())]
+    for c in cands:  # a value out of range is refused now, not after the fold models are trained
+        try:
+            check_options(replace(PRESETS["fuse"], **c))
+        except ParameterError as e:
+            raise SystemExit(f"--set: {e}") from None
     folders = [Path(d) for d in args.data] or [DATA / "marsscapes-dev", DATA / "web-dev"]
     for f in folders:
         if not f.is_dir():
@@ -79,39 +101,42 @@ def main(argv=None):
     # the sky classifier learns from the first set's labels (the Mars mosaics) and the sims, as
     # shipped and as bench_detect.py --cv trains it; the folds span every set's images
     models = site_fold_models(folders[0], [n for _, n, _, _ in pairs], 5, sims)
-    res = {w: {} for w in weights}  # w -> name -> score
+    res = [{} for _ in cands]  # candidate -> name -> score
     kind = {}
     for s, name, img, truth in pairs:
         kind[name] = s
-        for w in weights:
+        for i, c in enumerate(cands):
             sk = detect_skyline(img, method="dp", model=models[name], net_member=member[name],
-                                w_net=w)
-            res[w][name] = score_skyline(sk, truth)
-    print(f"detected {len(pairs)} images x {len(weights)} weights in {time.time() - t0:.0f} s",
+                                **{"w_net": 1.0, **c})
+            res[i][name] = score_skyline(sk, truth)
+    print(f"detected {len(pairs)} images x {len(cands)} candidates in {time.time() - t0:.0f} s",
           file=sys.stderr)
     sets = sorted(set(kind.values()))
 
-    def wrong(w, names):
-        return np.mean([wrong_share([res[w][n] for n in names if kind[n] == s]) for s in sets])
+    def wrong(i, names):
+        return np.mean([wrong_share([res[i][n] for n in names if kind[n] == s]) for s in sets])
 
-    print("every image at one weight (the weight not held out):")
-    for w in weights:
+    def label(i):
+        return " ".join(f"{k} {v}" for k, v in cands[i].items())
+
+    print("every image with one candidate (the choice not held out):")
+    for i in range(len(cands)):
         for s in sets:
-            print("  " + line(f"w_net {w:g} {s}", {n: res[w][n] for n in res[w] if kind[n] == s}))
+            print("  " + line(f"{label(i)} {s}", {n: sc for n, sc in res[i].items() if kind[n] == s}))
     chosen = {}
     for k in sorted(set(member.values())):
         train = [n for n in kind if member[n] != k]
-        chosen[k] = min(weights, key=lambda w: wrong(w, train))
+        chosen[k] = min(range(len(cands)), key=lambda i: wrong(i, train))
     print("chosen by the other four folds: "
-          + ", ".join(f"fold {k} {w:g}" for k, w in chosen.items()))
-    print("held out (each fold at its own choice):")
+          + ", ".join(f"fold {k}: {label(i)}" for k, i in chosen.items()))
+    print("held out (each fold with its own choice):")
     held = {n: res[chosen[member[n]]][n] for n in kind}
     for s in sets:
         print("  " + line(s, {n: sc for n, sc in held.items() if kind[n] == s}))
     if args.json:
         Path(args.json).write_text(json.dumps(
-            {"weights": weights, "chosen": chosen, "member": member,
-             "scores": {str(w): r for w, r in res.items()}}, default=float))
+            {"candidates": cands, "chosen": chosen, "member": member, "scores": res},
+            default=float))
 
 
 if __name__ == "__main__":
