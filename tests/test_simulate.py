@@ -485,6 +485,36 @@ def test_clouds_texture_the_sky_and_leave_the_terrain(hills, tmp_path):
     assert 0.3 < changed["clouds:0.5"] < changed["clouds:1"] - 0.1
 
 
+def test_snow_whitens_the_summits_first_and_leaves_the_sky(hills, tmp_path):
+    """Snow lies above a snow line that falls with strength: at 0.5 the terrain just below the
+    skyline (summits, hundreds of metres above the camera) whitens towards the sky while the
+    ground at the camera's feet keeps its very pixels; at 1 that ground whitens too. The sky is
+    untouched."""
+    t = Truth(2400.0, 2400.0, 200.0)
+    res = {c: render_frame(hills, t, tmp_path / str(c), c, tilt_deg=10)[:2]
+           for c in (None, "snow:0.5", "snow:1")}
+    g0, rows = res[None][0].mean(axis=2), res[None][1]
+    sky, summit = band(rows, -1000, -4), band(rows, 3, 10)
+    assert sky.sum() > 5000 and summit.sum() > 1000
+    g5, g1 = (res[c][0].mean(axis=2) for c in ("snow:0.5", "snow:1"))
+    for g in (g5, g1):
+        np.testing.assert_array_equal(g[sky], g0[sky])
+    # Below the skyline: measured 109 bare, 126 at 0.5, 162 at 1, against a sky of 198.
+    assert g5[summit].mean() > g0[summit].mean() + 8 and g1[summit].mean() > g5[summit].mean() + 20
+    assert g1[summit].mean() < g0[band(rows, -12, -4)].mean()
+    # The bottom rows, ground by the camera: unchanged at 0.5, measured 112 -> 175 at 1.
+    np.testing.assert_array_equal(g5[-10:], g0[-10:])
+    assert g1[-10:].mean() > g0[-10:].mean() + 30
+
+
+def test_earth_only_conditions_are_refused_on_mars(hills, tmp_path):
+    for c in ("clouds", "snow:0.4"):
+        with pytest.raises(ParameterError, match=f"{c.split(':')[0]} condition is for Earth only"):
+            simulate_acquisition(hills, Truth(2400.0, 2400.0, 0.0), tmp_path / c, frames=1,
+                                 conditions=c, planet="mars", seed=1)
+    assert not any(tmp_path.iterdir())  # refused before anything was written
+
+
 def test_glare_brightens_towards_the_sun(hills, tmp_path):
     """Veiling glare falls off with the angle from the sun. The sun sits 8 deg behind a ridge
     (skyline at 20 deg elevation at azimuth 156) so that the pixels around it are unsaturated

@@ -9,7 +9,7 @@ which the DEM lacks, ``NAME.visible.skyline.json`` holds the skyline a camera re
 
 Looks: Lambert shading from a sun direction, an albedo texture fixed in world coordinates (so
 overlapping frames agree), a planet sky, distance haze, optics blur, vignetting, sensor noise.
-:class:`Conditions` adds dust, clouds, rocks, glare, exposure faults and blur, each with a strength
+:class:`Conditions` adds dust, clouds, snow, rocks, glare, exposure faults and blur, each with a strength
 in [0, 1]. :func:`simulate_set` draws the named robustness sets (:data:`SETS`).
 """
 
@@ -30,7 +30,7 @@ from ..formats import (Acquisition, Frame, PanoramaSpec, Skyline, Truth, save_ac
                        write_skyline_json)
 from ..planets import get_planet, resolve_planet
 from ..raycast import Projection, camera_centre
-from .conditions import as_conditions
+from .conditions import as_conditions, check_planet
 from .folders import check_out_folder, staged_folder
 from .layered import cast_layers, scene_layers, skyline_layers
 from .scene import Scene, make_scene, rock_layout
@@ -191,8 +191,7 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
     prior = check_attitude_prior(prior)
     planet_key = pl.name if pl.name in ("earth", "mars") else "earth"
     cond = as_conditions(conditions)
-    if cond.clouds > 0 and planet_key != "earth":
-        raise ParameterError("the clouds condition is for Earth only: drop it or use --planet earth")
+    check_planet(cond, planet_key)
     origin = camera_centre(dem, truth.x, truth.y, camera_height_m)
     layers = scene_layers(dem, origin)  # one DEM, or a stack's members as seen from here
     check_out_folder(out, overwrite)  # before the rock layout's horizon rendering

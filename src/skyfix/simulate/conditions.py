@@ -1,5 +1,5 @@
-"""Imaging conditions of a simulated acquisition: dust, clouds, rocks, glare, exposure faults and
-blur, each with a strength in [0, 1]. A new condition enters as a field here and a term in
+"""Imaging conditions of a simulated acquisition: dust, clouds, snow, rocks, glare, exposure faults
+and blur, each with a strength in [0, 1]. A new condition enters as a field here and a term in
 :mod:`.shading` (or :mod:`.scene` when it changes the world, as rocks do).
 """
 
@@ -16,6 +16,8 @@ class Conditions:
 
     dust : airborne dust: short haze distance, low contrast at the horizon
     clouds : bright cloud structures above the skyline (Earth only)
+    snow : snow on the terrain above a snow line that falls with strength, on slopes under about
+        50 deg (Earth only): bright summits against a bright sky, the skyline's contrast gone
     rocks : boulders near the rover that the DEM does not contain and that cut the skyline
     glare : the sun in view, with veiling glare and lens flare
     overexposed, dark : exposure faults (gain up to x3 and clipped; gain down to x0.15, noisier)
@@ -24,6 +26,7 @@ class Conditions:
 
     dust: float = 0.0
     clouds: float = 0.0
+    snow: float = 0.0
     rocks: float = 0.0
     glare: float = 0.0
     overexposed: float = 0.0
@@ -67,6 +70,18 @@ class Conditions:
 
     def __str__(self) -> str:
         return ",".join(f"{k}:{v:g}" for k, v in self.active().items()) or "nominal"
+
+
+#: conditions that only Earth has
+EARTH_ONLY = ("clouds", "snow")
+
+
+def check_planet(c: Conditions, planet: str) -> None:
+    """Refuse a condition that ``planet`` (``earth``, ``mars``) does not have."""
+    for name in EARTH_ONLY:
+        if getattr(c, name) > 0 and planet != "earth":
+            raise ParameterError(f"the {name} condition is for Earth only: drop it or use "
+                                 "--planet earth")
 
 
 def as_conditions(c) -> Conditions:

@@ -10,9 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dem import Dem
-from ..errors import ParameterError
 from ..formats import Truth
-from .conditions import Conditions
+from .conditions import Conditions, check_planet
 
 
 @dataclass(frozen=True)
@@ -119,8 +118,7 @@ def make_scene(planet: str, conditions: Conditions, seed: int, *, sun_az_deg=Non
     :func:`rock_layout`."""
     rng = np.random.default_rng([seed, 17])
     c = conditions
-    if c.clouds > 0 and planet != "earth":
-        raise ParameterError("the clouds condition is for Earth only: drop it or use --planet earth")
+    check_planet(c, planet)
     # Dust shortens the haze distance geometrically: 0.5 -> about 6 km on Mars, 1 -> 1.6 km.
     haze = (40_000.0 if planet == "earth" else 20_000.0) * math.exp(-2.5 * c.dust)
     gain = 1.0 * (1.0 + 2.0 * c.overexposed) * (1.0 - 0.85 * c.dark)

@@ -1,5 +1,5 @@
-"""From ray-cast geometry to pixels: Lambert shading from a sun direction, the albedo texture, a
-planet sky, clouds, distance haze, optics blur, vignetting, glare and sensor noise.
+"""From ray-cast geometry to pixels: Lambert shading from a sun direction, the albedo texture, snow,
+a planet sky, clouds, distance haze, optics blur, vignetting, glare and sensor noise.
 """
 
 from __future__ import annotations
@@ -36,6 +36,22 @@ def _clouds(direction: np.ndarray, scene: Scene, strength: float) -> np.ndarray:
     cover = np.clip((n - thr) / 0.12, 0, 1) * up
     # Fade the layer out towards the horizon so clouds stay above the skyline.
     return cover * np.clip((dz - 0.02) / 0.08, 0, 1)
+
+
+#: fresh snow's albedo, linear RGB (a little bluer than white)
+SNOW_ALBEDO = np.array([0.86, 0.89, 0.93])
+
+
+def snow_cover(z, normal_z, tex, camera_z, strength):
+    """Snow cover in [0, 1] of terrain points at heights ``z`` [m] with surface normals' vertical
+    component ``normal_z``: above a snow line ``600 (1 - strength) - 100`` m over the camera
+    (strength 1: the camera's own valley floor is white), its edge ragged by the world-fixed
+    texture ``tex`` (+-60 m), and only where the slope is under about 50 deg (rock faces
+    steeper than that hold no snow)."""
+    line = camera_z + 600.0 * (1.0 - strength) - 100.0 + 120.0 * (0.5 - tex)
+    above = np.clip((np.nan_to_num(z, nan=-1e9) - line) / 30.0, 0.0, 1.0)
+    flat_enough = np.clip((normal_z - 0.55) / 0.15, 0.0, 1.0)
+    return above * flat_enough
 
 
 def antialias_edge(img: np.ndarray, edge_rows: np.ndarray) -> None:
@@ -90,6 +106,10 @@ def shade(cast: CastResult, scene: Scene, *, focal_px: float, rng: np.random.Gen
     # is multiplicative, so it survives in shadow, where the roughness below gives no texture:
     # at +-6 % a slope in its own shadow rendered smooth and read as sky.
     albedo = albedo * np.clip(1.0 + 1.6 * (tex2[..., None] - 0.5), 0.4, 1.6)
+    if c.snow > 0:
+        cover = snow_cover(pts[..., 2], cast.normal[..., 2], tex, cast.origin[2], c.snow)
+        cover = np.where(kind == 1, cover, 0.0)[..., None]
+        albedo = albedo * (1 - cover) + cover * SNOW_ALBEDO * (0.94 + 0.12 * tex2[..., None])
     rock = kind == 2
     if rock.any():
         rock_col = np.array([0.30, 0.24, 0.20]) if scene.planet == "mars" else np.array([0.33, 0.32, 0.30])
