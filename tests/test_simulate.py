@@ -507,8 +507,34 @@ def test_snow_whitens_the_summits_first_and_leaves_the_sky(hills, tmp_path):
     assert g1[-10:].mean() > g0[-10:].mean() + 30
 
 
+def test_a_lake_mirrors_the_sky_below_the_skyline_and_leaves_the_truth(hills, tmp_path):
+    """The lake fills the ground under its level with water that mirrors the sky: smooth, bluish
+    and bright where the terrain was rough and brown. The sky's pixels and the skyline truth are
+    untouched; the level lies under the rover's feet."""
+    import cv2
+
+    from skyfix.simulate.scene import lake_level
+
+    t = Truth(2400.0, 2400.0, 200.0)
+    (g0, rows0, out0), (g1, rows1, out1) = (
+        render_frame(hills, t, tmp_path / str(c), c, tilt_deg=5) for c in (None, "lake:0.5"))
+    np.testing.assert_array_equal(rows1, rows0)
+    sky = band(rows0, -1000, -4)
+    np.testing.assert_array_equal(g1[sky], g0[sky])
+    level = lake_level(hills, t.x, t.y, 0.5)
+    assert level <= float(hills.height_at(t.x, t.y)) - 0.3
+    changed = np.any(g1 != g0, axis=2) & band(rows0, 4, 1000)
+    assert changed.mean() > 0.1  # this view looks down on a valley floor (measured 16 %)
+    blue = g1[..., 2] - g1[..., 0]  # blue minus red: measured 27 over the water, -15 bare
+    assert blue[changed].mean() > (g0[..., 2] - g0[..., 0])[changed].mean() + 20
+    # smooth: high-passed grey std over the water against the same pixels bare (1.8 and 5.6)
+    hp0, hp1 = (im.mean(axis=2) - cv2.blur(im.mean(axis=2), (7, 7)) for im in (g0, g1))
+    inner = cv2.erode(changed.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    assert inner.sum() > 500 and hp1[inner].std() < 0.5 * hp0[inner].std()
+
+
 def test_earth_only_conditions_are_refused_on_mars(hills, tmp_path):
-    for c in ("clouds", "snow:0.4"):
+    for c in ("clouds", "snow:0.4", "lake"):
         with pytest.raises(ParameterError, match=f"{c.split(':')[0]} condition is for Earth only"):
             simulate_acquisition(hills, Truth(2400.0, 2400.0, 0.0), tmp_path / c, frames=1,
                                  conditions=c, planet="mars", seed=1)

@@ -7,7 +7,7 @@ import click
 from .._io import writing_to
 
 CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [0, 1]: dust, clouds "
-                  "(Earth), snow (Earth), rocks, glare, overexposed, dark, blur. "
+                  "(Earth), snow (Earth), lake (Earth), rocks, glare, overexposed, dark, blur. "
                   "Example: dust:0.5,rocks.")
 
 

@@ -9,10 +9,10 @@ and writes the acquisition format of ``conventions.md`` into a folder replaced w
 first meets the DEM, ``null`` where the column has no sky-to-ground edge). With rocks, which the
 DEM lacks, ``NAME.visible.skyline.json`` holds the skyline a camera really sees.
 
-:class:`Conditions` (:mod:`.conditions`) adds dust, clouds, snow, rocks, glare, exposure faults and blur,
-each with a strength in [0, 1]. :func:`simulate_set` (:mod:`.sets`) draws the named robustness
-sets (:data:`SETS`), optionally rendered from a world that differs from the map (:mod:`.world`:
-the DEMERR set, or any set with map errors).
+:class:`Conditions` (:mod:`.conditions`) adds dust, clouds, snow, a lake, rocks, glare, exposure
+faults and blur, each with a strength in [0, 1]. :func:`simulate_set` (:mod:`.sets`) draws the
+named robustness sets (:data:`SETS`), optionally rendered from a world that differs from the map
+(:mod:`.world`: the DEMERR set, or any set with map errors).
 """
 
 from .acquisition import (PANO_ELEVATION_TOP_DEG, PANO_HEIGHT, PANO_VFOV_DEG, PANO_WIDTH,

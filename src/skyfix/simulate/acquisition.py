@@ -9,8 +9,8 @@ which the DEM lacks, ``NAME.visible.skyline.json`` holds the skyline a camera re
 
 Looks: Lambert shading from a sun direction, an albedo texture fixed in world coordinates (so
 overlapping frames agree), a planet sky, distance haze, optics blur, vignetting, sensor noise.
-:class:`Conditions` adds dust, clouds, snow, rocks, glare, exposure faults and blur, each with a strength
-in [0, 1]. :func:`simulate_set` draws the named robustness sets (:data:`SETS`).
+:class:`Conditions` adds dust, clouds, snow, a lake, rocks, glare, exposure faults and blur, each
+with a strength in [0, 1]. :func:`simulate_set` draws the named robustness sets (:data:`SETS`).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from ..raycast import Projection, camera_centre
 from .conditions import as_conditions, check_planet
 from .folders import check_out_folder, staged_folder
 from .layered import cast_layers, scene_layers, skyline_layers
-from .scene import Scene, make_scene, rock_layout
+from .scene import Scene, lake_level, make_scene, rock_layout
 from .shading import shade
 
 
@@ -219,7 +219,9 @@ def simulate_acquisition(dem: Dem, truth: Truth, out, *, camera: str | Camera = 
         else:
             sun_az_deg = truth.yaw_deg + rng.uniform(-180, 180)
             sun_el_deg = rng.uniform(5, 25)
-    scene = make_scene(planet_key, cond, seed, sun_az_deg=sun_az_deg, sun_el_deg=sun_el_deg, rocks=rocks)
+    lake = lake_level(dem, truth.x, truth.y, cond.lake) if cond.lake > 0 else math.nan
+    scene = make_scene(planet_key, cond, seed, sun_az_deg=sun_az_deg, sun_el_deg=sun_el_deg, rocks=rocks,
+                       lake_z_m=lake)
 
     out = Path(out)
     with staged_folder(out, overwrite) as tmp:

@@ -1,5 +1,5 @@
-"""Imaging conditions of a simulated acquisition: dust, clouds, snow, rocks, glare, exposure faults
-and blur, each with a strength in [0, 1]. A new condition enters as a field here and a term in
+"""Imaging conditions of a simulated acquisition: dust, clouds, snow, a lake, rocks, glare, exposure
+faults and blur, each with a strength in [0, 1]. A new condition enters as a field here and a term in
 :mod:`.shading` (or :mod:`.scene` when it changes the world, as rocks do).
 """
 
@@ -18,6 +18,9 @@ class Conditions:
     clouds : bright cloud structures above the skyline (Earth only)
     snow : snow on the terrain above a snow line that falls with strength, on slopes under about
         50 deg (Earth only): bright summits against a bright sky, the skyline's contrast gone
+    lake : still water filling the terrain around the rover up to a level that rises with strength,
+        never above the rover's feet (Earth only): the sky mirrored below the skyline, a shoreline
+        for an edge
     rocks : boulders near the rover that the DEM does not contain and that cut the skyline
     glare : the sun in view, with veiling glare and lens flare
     overexposed, dark : exposure faults (gain up to x3 and clipped; gain down to x0.15, noisier)
@@ -27,6 +30,7 @@ class Conditions:
     dust: float = 0.0
     clouds: float = 0.0
     snow: float = 0.0
+    lake: float = 0.0
     rocks: float = 0.0
     glare: float = 0.0
     overexposed: float = 0.0
@@ -73,7 +77,7 @@ class Conditions:
 
 
 #: conditions that only Earth has
-EARTH_ONLY = ("clouds", "snow")
+EARTH_ONLY = ("clouds", "snow", "lake")
 
 
 def check_planet(c: Conditions, planet: str) -> None:

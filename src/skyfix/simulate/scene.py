@@ -22,6 +22,7 @@ class Scene:
     haze_m : [m] distance at which haze hides 63 % of the terrain's own light
     gain : exposure gain (1 nominal)
     rocks : (K, 5) ellipsoids (x, y, z, radius_h, radius_v) [m]
+    lake_z_m : [m] level of still water over the terrain (NaN: none; see :func:`lake_level`)
     """
 
     planet: str
@@ -35,6 +36,7 @@ class Scene:
     texture_seed: int
     cloud_seed: int
     rocks: tuple = ()
+    lake_z_m: float = math.nan
 
     @property
     def sun(self) -> np.ndarray:
@@ -111,11 +113,28 @@ def rock_layout(dem: Dem, origin, truth: Truth, camera_height_m: float, az_lo: f
     return tuple(rocks)
 
 
+def lake_level(dem: Dem, x: float, y: float, strength: float, radius_m: float = 2000.0) -> float:
+    """Level [m] of a lake around (x, y): the ``5 + 35 strength`` percentile of the DEM's heights
+    within ``radius_m``, and at least 0.3 m under the ground at (x, y) so the rover stays dry.
+    One level for the whole acquisition: overlapping frames see the same shoreline."""
+    c0, r0 = dem.xy_to_colrow(x - radius_m, y + radius_m)
+    c1, r1 = dem.xy_to_colrow(x + radius_m, y - radius_m)
+    rs = sorted((int(np.floor(r0)), int(np.ceil(r1))))
+    cs = sorted((int(np.floor(c0)), int(np.ceil(c1))))
+    ny, nx = dem.z.shape
+    z = dem.z[max(0, rs[0]):min(ny, rs[1] + 1), max(0, cs[0]):min(nx, cs[1] + 1)]
+    z = z[np.isfinite(z)]
+    ground = float(dem.height_at(x, y))
+    if z.size == 0:
+        return ground - 0.3
+    return min(float(np.percentile(z, 5.0 + 35.0 * strength)), ground - 0.3)
+
+
 def make_scene(planet: str, conditions: Conditions, seed: int, *, sun_az_deg=None, sun_el_deg=None,
-               rocks=()) -> Scene:
+               rocks=(), lake_z_m=math.nan) -> Scene:
     """The :class:`Scene` for a planet (``earth``/``mars`` palette), conditions and seed; the sun
     at (``sun_az_deg``, ``sun_el_deg``) [deg] or drawn from the seed; ``rocks`` from
-    :func:`rock_layout`."""
+    :func:`rock_layout`; ``lake_z_m`` from :func:`lake_level` (the lake condition)."""
     rng = np.random.default_rng([seed, 17])
     c = conditions
     check_planet(c, planet)
@@ -130,5 +149,5 @@ def make_scene(planet: str, conditions: Conditions, seed: int, *, sun_az_deg=Non
         sun_el_deg=float(rng.uniform(20, 55) if sun_el_deg is None else sun_el_deg),
         haze_m=haze, gain=gain, noise=noise, blur_px=blur, conditions=c,
         texture_seed=int(rng.integers(0, 2**20)), cloud_seed=int(rng.integers(0, 2**20)),
-        rocks=tuple(rocks),
+        rocks=tuple(rocks), lake_z_m=float(lake_z_m),
     )

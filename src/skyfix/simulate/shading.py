@@ -1,5 +1,6 @@
 """From ray-cast geometry to pixels: Lambert shading from a sun direction, the albedo texture, snow,
-a planet sky, clouds, distance haze, optics blur, vignetting, glare and sensor noise.
+a lake mirroring the sky, a planet sky, clouds, distance haze, optics blur, vignetting, glare and
+sensor noise.
 """
 
 from __future__ import annotations
@@ -36,6 +37,33 @@ def _clouds(direction: np.ndarray, scene: Scene, strength: float) -> np.ndarray:
     cover = np.clip((n - thr) / 0.12, 0, 1) * up
     # Fade the layer out towards the horizon so clouds stay above the skyline.
     return cover * np.clip((dz - 0.02) / 0.08, 0, 1)
+
+
+#: what still water shows of itself, linear RGB (dark, a little green)
+WATER_BODY = np.array([0.025, 0.045, 0.05])
+
+
+def _lake(d, pts, kind, dist, surf, scene: Scene, horizon, zenith, origin):
+    """Terrain seen under the lake's level is water: a ray that meets the ground below the level
+    crossed the water's surface first (it runs downwards there). The surface mirrors the sky
+    (Schlick's Fresnel term for water: 2 % looking down, a mirror at grazing angles), faintly
+    rippled by a world-fixed texture, over the dark water body. Returns (surface colours, 3-D
+    distances [m]) with the water's put in; the lake mirrors the sky only, not the terrain."""
+    dz = d[..., 2]
+    under = (kind == 1) & (np.nan_to_num(pts[..., 2], nan=np.inf) < scene.lake_z_m) & (dz < 0)
+    if not under.any():
+        return surf, dist
+    s = np.where(under, (scene.lake_z_m - origin[2]) / np.where(under, dz, -1.0), 0.0)
+    # ripples tilt the mirrored rays by up to ~1 deg, fixed on the water (frames agree)
+    wx, wy = origin[0] + d[..., 0] * s, origin[1] + d[..., 1] * s
+    ripple = np.empty(dz.shape)
+    albedo_texture(wx, wy, np.full(dz.shape, 1.0), scene.texture_seed + 202, 2.0, 3, ripple)
+    up = np.clip(-dz + 0.03 * (ripple - 0.5), 1e-3, 1.0)
+    mirrored = np.stack([d[..., 0], d[..., 1], up], axis=-1)
+    mirrored /= np.linalg.norm(mirrored, axis=-1, keepdims=True)
+    fresnel = (0.02 + 0.98 * (1.0 - np.clip(-dz, 0.0, 1.0)) ** 5)[..., None]
+    water = fresnel * _sky(mirrored, scene, horizon, zenith) + (1 - fresnel) * WATER_BODY
+    return np.where(under[..., None], water, surf), np.where(under, s, dist)
 
 
 #: fresh snow's albedo, linear RGB (a little bluer than white)
@@ -130,6 +158,9 @@ def shade(cast: CastResult, scene: Scene, *, focal_px: float, rng: np.random.Gen
     if c.clouds > 0:
         cover = _clouds(d, scene, c.clouds)[..., None]
         sky = sky * (1 - cover) + cover * (np.array([0.95, 0.95, 0.97]) * (0.8 + 0.25 * tex2[..., None]))
+
+    if c.lake > 0 and np.isfinite(scene.lake_z_m):
+        surf, dist = _lake(d, pts, kind, dist, surf, scene, horizon, zenith, cast.origin)
 
     # Aerial perspective: distant terrain takes the colour of the sky at the horizon.
     haze = 1.0 - np.exp(-np.where(np.isfinite(dist), dist, 0.0) / scene.haze_m)
