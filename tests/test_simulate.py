@@ -365,13 +365,16 @@ def test_slope_in_its_own_shadow_keeps_its_texture(tmp_path):
     assert rel["shadow"][0] > 0.6 * rel["sunlit"][0]
 
 
-def test_overlapping_frames_agree(hills, tmp_path):
-    """World-fixed texture: the same direction looks the same in two overlapping frames."""
+@pytest.mark.parametrize("yaw, conditions", [(0.0, None), (200.0, "lake:0.5")])
+def test_overlapping_frames_agree(hills, tmp_path, yaw, conditions):
+    """World-fixed texture: the same direction looks the same in two overlapping frames (with a
+    lake too: a fifth of this view is water, its level and ripples fixed in the world)."""
     import cv2
 
     cam = camera_from_fov(300, 200, 45.0)
-    out = simulate_acquisition(hills, Truth(2400.0, 2400.0, 0.0), tmp_path / "o", camera=cam,
-                               frames=2, pan_start_deg=0, pan_step_deg=20, seed=5, tilt_deg=-10)
+    out = simulate_acquisition(hills, Truth(2400.0, 2400.0, yaw), tmp_path / "o", camera=cam,
+                               frames=2, pan_start_deg=0, pan_step_deg=20, seed=5, tilt_deg=-10,
+                               conditions=conditions)
     a, b = (cv2.imread(str(out / f"frame_00{k}.png"), cv2.IMREAD_GRAYSCALE).astype(float) for k in range(2))
     # High-pass: vignetting differs between the frames (smooth), texture must not.
     a, b = (im - cv2.GaussianBlur(im, (0, 0), 6) for im in (a, b))
@@ -384,8 +387,10 @@ def test_overlapping_frames_agree(hills, tmp_path):
     assert inside.sum() > 300
     same = b[vv[inside], uu[inside]]
     there = a[np.round(v0[inside]).astype(int), np.round(u0[inside]).astype(int)]
-    assert np.corrcoef(same, there)[0, 1] > 0.6
-    assert abs(np.corrcoef(same, np.roll(there, 37))[0, 1]) < 0.2
+    agree, control = np.corrcoef(same, there)[0, 1], np.corrcoef(same, np.roll(there, 37))[0, 1]
+    assert agree > 0.6
+    # out of register nothing agrees but the large shapes: the shoreline's edge keeps 0.28
+    assert abs(control) < (0.2 if conditions is None else 0.35) and agree > control + 0.4
 
 
 # --- conditions and sets -------------------------------------------------------------------------
