@@ -1,4 +1,5 @@
-"""Regenerate the example images of docs/simulator.md (PYTHONPATH=src python docs/make_simulator_images.py).
+"""Regenerate the example images of docs/simulator.md (PYTHONPATH=src python docs/make_simulator_images.py
+[STEM ...]: only those, e.g. ``snow lake``).
 
 Renders from the Sierra Nevada DEM in ../shared/data, two overlapping navcam frames per condition
 with the terrain skyline truth drawn in red (and the visible one in yellow where rocks cut it),
@@ -26,6 +27,8 @@ CASES = [  # file stem, planet, conditions, pitch, roll, tilt
     ("nominal_mars", "mars", None, 0, 0, 0),
     ("dust", "mars", "dust:0.6", 0, 0, 0),
     ("clouds", "earth", "clouds:0.8", 0, 0, 0),
+    ("snow", "earth", "snow:0.85", 0, 0, 0),
+    ("lake", "earth", "lake:0.3", 0, 0, -10),
     ("rocks", "mars", "rocks:0.8", 0, 0, 0),
     ("glare", "earth", "glare:0.8", 0, 0, 0),
     ("overexposed", "earth", "overexposed:0.8", 0, 0, 0),
@@ -46,7 +49,7 @@ def overlay(img, path, colour):
             img[max(rr - 1, 0):rr + 1, c] = colour
 
 
-def main():
+def main(only=()):
     OUT.mkdir(parents=True, exist_ok=True)
     dem = load_dem(DEM)
     # A position whose skyline has some shape in the rendered directions (heading 250, two frames).
@@ -62,6 +65,8 @@ def main():
     truth = (xs[k], ys[k])
     with tempfile.TemporaryDirectory() as tmp:
         for stem, planet, cond, pitch, roll, tilt in CASES:
+            if only and stem not in only:
+                continue
             acq = simulate_acquisition(dem, Truth(truth[0], truth[1], 250.0, pitch, roll), Path(tmp) / stem,
                                        frames=2, pan_start_deg=0, planet=planet, conditions=cond,
                                        tilt_deg=tilt, seed=11)
@@ -72,6 +77,8 @@ def main():
                 overlay(img, acq / f"frame_00{k}.visible.skyline.json", (0, 255, 255))
                 tiles.append(cv2.resize(img, (256, 256), interpolation=cv2.INTER_AREA))
             cv2.imwrite(str(OUT / f"sim_{stem}.png"), np.hstack(tiles))
+        if only and "panorama_mars" not in only:
+            return
         acq = simulate_acquisition(dem, Truth(truth[0], truth[1], 250.0), Path(tmp) / "pano",
                                    mode="panorama", planet="mars", seed=11)
         img = cv2.imread(str(acq / "pano.png"))
@@ -80,4 +87,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    main(set(sys.argv[1:]))
