@@ -217,14 +217,14 @@ def sim_pairs(set_dir):
 
 def site_fold_models(folder, names, n_folds=5, sim_dirs=(), sim_max_frames=10, grey=False):
     """{name: sky model trained without ``name``'s fold}: the labelled images of ``folder`` and the
-    scored ``names`` dealt into ``n_folds`` folds by site (``train_sky_net.folds``: a Mars mosaic
+    scored ``names`` dealt into ``n_folds`` folds by site (``sky_net_data.folds``: a Mars mosaic
     by its sol, anything else by its name), one model per fold by the recipe of
     ``scripts/train_sky_model.py``: each image and its sky-dominant crop, plus the simulated
     frames of ``sim_dirs`` (never held out: they are not dev images); ``grey``: on grey copies
     (its ``--grey``)."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
     from train_sky_model import as_grey, read_labelled, simulated_frames, training_views
-    from train_sky_net import folds
+    from sky_net_data import folds
 
     from skyfix.detect.skymodel import fit_sky_model, training_pixels
 
@@ -342,7 +342,7 @@ def main(argv=None):
             if args.board_python:
                 peak_rss_4mp(pairs[0][1], method=m, python=args.board_python)
     # fuse cross-validated: each image also gets the shipped network's member that held its fold
-    # out (the ensemble's folds are these folds: train_sky_net.folds)
+    # out (the ensemble's folds are these folds: sky_net_data.folds)
     member = {}
     if args.cv and "fuse" in args.methods.split(","):
         from skyfix.detect.net import load_sky_net

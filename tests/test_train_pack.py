@@ -1,6 +1,7 @@
-"""The sky network's training data as it travels to a training machine (scripts/train_sky_net.py
---write-pack / --pack) and the crops made in worker processes: what arrives is what was written,
-and the batches do not depend on how many workers made them. PyTorch is not needed."""
+"""The sky network's training data (scripts/sky_net_data.py, used by train_sky_net.py) as it
+travels to a training machine (--write-pack / --pack) and the crops made in worker processes:
+what arrives is what was written, the batches do not depend on how many workers made them, and
+members trained side by side never see their held-out fold. PyTorch is not needed."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
-import train_sky_net as T  # noqa: E402
+import sky_net_data as T  # noqa: E402
 
 
 def _images():
@@ -48,8 +49,8 @@ def test_a_pack_gives_back_the_labels_and_the_no_data_exactly(tmp_path):
 def test_batches_are_the_same_whatever_the_number_of_workers():
     images = _images()
     p = np.full(len(images), 1 / len(images))
-    one = list(T._batches(images, p, 2, 7, 3, workers=1))
-    two = list(T._batches(images, p, 2, 7, 3, workers=2))
+    one = list(T.batches(images, p, 2, 7, 3, workers=1))
+    two = list(T.batches(images, p, 2, 7, 3, workers=2))
     assert len(one) == len(two) == 3
     for (x1, y1), (x2, y2) in zip(one, two):
         assert x1.shape[0] == 2 and x1.shape[2:] == T.CROP and y1.shape == (2, *T.CROP)
@@ -74,7 +75,7 @@ def test_members_side_by_side_never_see_their_held_out_fold_and_keep_the_recipes
             drawn[m].append(x)
     stream.close()
     # the crops a member got are the stream's, minus its fold: compare with the stream itself
-    chunks = T._batches(images, p, 3, 5, 200, 0, index=True, keyed=True)
+    chunks = T.batches(images, p, 3, 5, 200, 0, index=True, keyed=True)
     made = [(x[j], i) for x, _, idx in chunks for j, i in enumerate(idx)]
     for m in range(k):
         mine = [(xx, i) for xx, i in made if fold_of[i] != m][: 60 * batch]
