@@ -65,7 +65,22 @@ def web_images(folder):
         yield name, "web:" + name, "web", img, y
 
 
+def _whole_columns(png: Path) -> tuple[list, list]:
+    """The simulator's record of ``png``'s columns that are all ground and all sky (ranges), from
+    its ``acquisition.json``; empty where it has none (frames rendered before 2026-11-27)."""
+    acq = png.parent / "acquisition.json"
+    if not acq.is_file():
+        return [], []
+    for info in json.loads(acq.read_text()).get("simulation", {}).get("images", []):
+        if info.get("image") == png.name:
+            return info.get("ground_only_columns", []), info.get("sky_only_columns", [])
+    return [], []
+
+
 def sim_images(folder, max_frames=60):
+    """(name, "sim", "sim", RGB image, labels) for each simulated frame with a truth: sky above
+    each column's visible skyline; a column without one is terrain or sky where the simulator
+    recorded it wholly so (its skyline above the frame's top, or no terrain in it), else ignored."""
     frames = []
     for png in sorted(Path(folder).rglob("*.png")):
         vis = png.with_name(png.stem + ".visible.skyline.json")
@@ -76,9 +91,13 @@ def sim_images(folder, max_frames=60):
         frames = [frames[i] for i in np.linspace(0, len(frames) - 1, max_frames).round().astype(int)]
     for png, truth in frames:
         rows = json.loads(truth.read_text())["rows"]
-        if any(r is not None for r in rows):
+        ground, sky = _whole_columns(png)
+        if any(r is not None for r in rows) or ground or sky:
             img = _read_rgb(png)
-            yield str(png), "sim", "sim", img, _rows_label(img.shape[0], rows)
+            y = _rows_label(img.shape[0], rows)
+            for (a, b), value in [*((r, 0) for r in ground), *((r, 1) for r in sky)]:
+                y[:, a:b] = value
+            yield str(png), "sim", "sim", img, y
 
 
 #: label value in a pack's label image: no image data there (the JPEG's pixels are not exactly 0)

@@ -19,7 +19,9 @@ everything instead.
 Data: every labelled image of the two dev sets in ``../shared/data`` (``marsscapes-dev``: sky from
 the label image, RGB (34, 56, 19), the no-data border ignored; ``web-dev``: sky above the drawn
 skyline, columns without one ignored) and the simulated frames of ``--sims`` (sky above each
-column's visible skyline; columns without one ignored). With ``--fold K`` the images of fold K
+column's visible skyline; a column without one is terrain or sky where the simulator recorded it
+wholly so, which frames rendered since 2026-11-27 carry, else ignored: the shipped ensemble's
+frames predate it). With ``--fold K`` the images of fold K
 are left out: folds group a Mars mosaic by its sol (the number before ``_``: near-duplicate
 mosaics of one site never sit on both sides) and an Earth photo by itself, and deal the sorted
 groups round-robin (:func:`folds`); simulated frames are never held out (they are not dev

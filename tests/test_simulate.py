@@ -686,6 +686,32 @@ def test_scom_skyline_leaves_the_frame(hills, tmp_path):
     assert max(missing) > 0.2 and min(missing) < 1.0
 
 
+def test_columns_without_a_skyline_are_recorded_as_all_ground_or_all_sky(hills, tmp_path):
+    """A frame tilted down until the skyline leaves its top: the columns without a row are the
+    ones recorded as all ground, and where the horizon renderer puts the skyline above the frame's
+    top edge (an independent prediction); none is all sky. Every column is one of the three."""
+    cam = camera_from_fov(160, 90, 60.0)
+    t = Truth(2400.0, 2400.0, 200.0)
+    out = simulate_acquisition(hills, t, tmp_path / "down", camera=cam, frames=1, tilt_deg=-10,
+                               seed=1)
+    info = json.loads((out / "acquisition.json").read_text())["simulation"]["images"][0]
+    rows = read_skyline_json(out / "frame_000.skyline.json").rows
+    ground = np.zeros(cam.width, bool)
+    for a, b in info["ground_only_columns"]:
+        ground[a:b] = True
+    assert info["sky_only_columns"] == []
+    assert 0.1 < ground.mean() < 0.9  # the set-up: the skyline leaves the top over part of it
+    np.testing.assert_array_equal(ground, ~np.isfinite(rows))
+    # the top row's ray against the rendered horizon at its azimuth
+    d = cam.pixel_to_ray(np.arange(cam.width) + 0.0, np.zeros(cam.width)) @ r_world_cam(
+        t.yaw_deg, 0, 0, 0, -10).T
+    az, el = direction_to_az_el(d)
+    hb = render_horizons(hills, t.x, t.y, azimuth_bins=3600)
+    sky_el = np.interp(az % 360, hb.azimuth_deg, hb.elevation_deg[0], period=360)
+    clear = np.abs(sky_el - el) > 0.2  # away from the edge case of a skyline on the top row
+    np.testing.assert_array_equal(ground[clear], (sky_el > el)[clear])
+
+
 # --- CLI -----------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

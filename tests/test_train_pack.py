@@ -89,3 +89,30 @@ def test_members_side_by_side_never_see_their_held_out_fold_and_keep_the_recipes
     one = next(T.shared_batches(images, fold_of, k, batch=batch, seed=5, workers=2, chunk=3))
     for (x1, y1), x0 in zip(one, (drawn[m][0] for m in range(k))):
         assert np.array_equal(x1, x0)
+
+
+def test_simulated_columns_without_a_skyline_are_labelled_as_the_simulator_recorded_them(tmp_path):
+    """A column without a skyline row is terrain where the simulator recorded it all ground (the
+    skyline above the frame), sky where it recorded it all sky, and ignored where it recorded
+    nothing (frames rendered before it did)."""
+    import json
+
+    import cv2
+
+    h, w = 40, 10
+    cv2.imwrite(str(tmp_path / "frame_000.png"), np.full((h, w, 3), 120, np.uint8))
+    rows = [None, None, None, 20.0, 20.0, None, None, None, None, None]
+    (tmp_path / "frame_000.skyline.json").write_text(json.dumps({"rows": rows, "width": w,
+                                                                  "height": h}))
+    sim = {"images": [{"image": "frame_000.png", "ground_only_columns": [[0, 3]],
+                       "sky_only_columns": [[8, 10]]}]}
+    (tmp_path / "acquisition.json").write_text(json.dumps({"simulation": sim}))
+    (_, _, kind, _, y), = list(T.sim_images(tmp_path))
+    assert kind == "sim"
+    assert (y[:, :3] == 0).all() and (y[:, 8:] == 1).all()  # recorded: terrain, sky
+    assert (y[:, 5:8] == 255).all()  # not recorded: ignored
+    assert (y[:20, 3:5] == 1).all() and (y[20:, 3:5] == 0).all()  # a skyline row as before
+    # without the record, the same frame is what it was: rows only, the rest ignored
+    (tmp_path / "acquisition.json").unlink()
+    (_, _, _, _, y0), = list(T.sim_images(tmp_path))
+    assert (y0[:, :3] == 255).all() and (y0[:, 8:] == 255).all()

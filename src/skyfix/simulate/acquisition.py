@@ -118,6 +118,13 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
             raise OSError(f"could not write {path}")
 
 
+def column_ranges(mask) -> list:
+    """[[start, stop), ...] of the runs of True in a 1-D bool array (JSON-ready ints)."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    edges = np.flatnonzero(m[1:] != m[:-1])
+    return [[int(a), int(b)] for a, b in zip(edges[::2], edges[1::2])]
+
+
 def _render_one(layers, origin, proj: Projection, scene: Scene, planet, name: str, out: Path,
                 focal_px: float, rng, sun_pixel, vignetting: bool) -> dict:
     rocks = scene.rocks_array()
@@ -132,7 +139,12 @@ def _render_one(layers, origin, proj: Projection, scene: Scene, planet, name: st
     _write_png(out / name, img)
     stem = name[: -len(".png")]
     write_skyline_json(out / f"{stem}.skyline.json", Skyline(rows, proj.width, proj.height, name))
-    info = {"image": name, "terrain_skyline_columns": int(np.isfinite(rows).sum())}
+    # A column without a skyline row is all sky or all ground (the skyline above the frame's
+    # top): the row cannot say which, these ranges can (what a trainer labels them)
+    sky = cast.kind == 0
+    info = {"image": name, "terrain_skyline_columns": int(np.isfinite(rows).sum()),
+            "ground_only_columns": column_ranges(~sky.any(axis=0)),
+            "sky_only_columns": column_ranges(sky.all(axis=0))}
     if len(rocks):
         write_skyline_json(out / f"{stem}.visible.skyline.json", Skyline(vis, proj.width, proj.height, name))
         info["rock_columns"] = int(np.sum(np.isfinite(vis) & (~np.isfinite(rows) | (np.abs(vis - rows) > 0.5))))
