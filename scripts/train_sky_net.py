@@ -72,6 +72,12 @@ was made on these same held-out figures, so they flatter it a little. Held out i
 Mars false skyline 7.1 -> 5.2 %, missed 7.2 -> 9.3 %, no-sky mosaics 17.8 -> 12.8 % claimed;
 Earth 1.04 -> 0.82 px.
 
+For the next retraining, ``scripts/make_sky_sims_more.py OUT`` renders frames the shipped recipe
+lacks (72 frames, about a minute): snow and lakes on Earth, and dusty Mars frames tilted down until
+the skyline leaves their top, labelled terrain where the simulator recorded a column all ground.
+Add them with ``--sims OUT/earth_snow --sims OUT/earth_lake --sims OUT/mars_haze_nosky``; not yet
+trained or measured.
+
 The no-sky weight was first seen to help on two folds, one member at a time on the CPU
 (2026-11-26: fold 0's Mars false skyline 10.7 -> 5.5 %, fold 1's 15.3 -> 12.0 %), with longer
 training and newer sims confounded; the table above separates it.
