@@ -75,8 +75,12 @@ Earth 1.04 -> 0.82 px.
 For the next retraining, ``scripts/make_sky_sims_more.py OUT`` renders frames the shipped recipe
 lacks (72 frames, about a minute): snow and lakes on Earth, and dusty Mars frames tilted down until
 the skyline leaves their top, labelled terrain where the simulator recorded a column all ground.
-Add them with ``--sims OUT/earth_snow --sims OUT/earth_lake --sims OUT/mars_haze_nosky``; not yet
-trained or measured.
+Add them with ``--sims OUT/earth_snow --sims OUT/earth_lake --sims OUT/mars_haze_nosky``. One fold
+measured, one seed (2026-11-27, ``--fold 1``, 2400 steps, x4, on two cores, 31 min each; fold 1's
+held-out images, raw path without the confidence cut), without -> with them: Mars 2.17 -> 7.98 px,
+false skyline 23.8 -> 17.7 %, missed 1.7 -> 4.9 %, its no-sky mosaics 61.6 -> 64.3 % claimed
+(371_2 58 -> 64 %, 388_2 97 -> 97 %); Earth 2.63 -> 1.30 px. Less false skyline on the mosaics with
+sky, none on the hazy ones: not a win to ship on; all five folds are needed.
 
 The no-sky weight was first seen to help on two folds, one member at a time on the CPU
 (2026-11-26: fold 0's Mars false skyline 10.7 -> 5.5 %, fold 1's 15.3 -> 12.0 %), with longer
