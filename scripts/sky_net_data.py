@@ -77,10 +77,10 @@ def _whole_columns(png: Path) -> tuple[list, list]:
     return [], []
 
 
-def sim_images(folder, max_frames=60):
-    """(name, "sim", "sim", RGB image, labels) for each simulated frame with a truth: sky above
-    each column's visible skyline; a column without one is terrain or sky where the simulator
-    recorded it wholly so (its skyline above the frame's top, or no terrain in it), else ignored."""
+def simulated_truths(folder, max_frames):
+    """(frame PNG, its skyline truth) for the simulated frames under ``folder`` (the visible
+    skyline where the simulator wrote one, else the terrain's), at most ``max_frames`` of them
+    spread evenly. The sky classifier's training reads them too."""
     frames = []
     for png in sorted(Path(folder).rglob("*.png")):
         vis = png.with_name(png.stem + ".visible.skyline.json")
@@ -89,7 +89,14 @@ def sim_images(folder, max_frames=60):
             frames.append((png, truth))
     if len(frames) > max_frames:
         frames = [frames[i] for i in np.linspace(0, len(frames) - 1, max_frames).round().astype(int)]
-    for png, truth in frames:
+    return frames
+
+
+def sim_images(folder, max_frames=60):
+    """(name, "sim", "sim", RGB image, labels) for each simulated frame with a truth: sky above
+    each column's visible skyline; a column without one is terrain or sky where the simulator
+    recorded it wholly so (its skyline above the frame's top, or no terrain in it), else ignored."""
+    for png, truth in simulated_truths(folder, max_frames):
         rows = json.loads(truth.read_text())["rows"]
         ground, sky = _whole_columns(png)
         if any(r is not None for r in rows) or ground or sky:

@@ -65,15 +65,9 @@ def read_simulated(folder, max_frames):
 
     from skyfix.formats import read_skyline_json
 
-    frames = []
-    for png in sorted(Path(folder).rglob("*.png")):
-        vis = png.with_name(png.stem + ".visible.skyline.json")
-        truth = vis if vis.exists() else png.with_name(png.stem + ".skyline.json")
-        if truth.exists():
-            frames.append((png, truth))
-    if len(frames) > max_frames:
-        frames = [frames[i] for i in np.linspace(0, len(frames) - 1, max_frames).round().astype(int)]
-    for png, truth in frames:
+    from sky_net_data import simulated_truths
+
+    for png, truth in simulated_truths(folder, max_frames):
         sky = read_skyline_json(truth)
         if not np.isfinite(sky.rows).any():
             continue
