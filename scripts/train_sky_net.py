@@ -176,79 +176,89 @@ def loss_fn(logit, y, mountain_weight=MOUNTAIN_WEIGHT):
     return (loss * wgt).sum() / wgt.sum().clamp(min=1)
 
 
+class Member:
+    """One network in training: the recipe's model (initial weights from ``seed``), AdamW with a
+    one-cycle schedule over ``steps``, and a running mean of its loss for the log."""
+
+    def __init__(self, *, steps, seed, lr, device, mountain_weight):
+        import torch
+
+        torch.manual_seed(seed)
+        self.net = build_model().to(device).train()
+        self.opt = torch.optim.AdamW(self.net.parameters(), lr=lr, weight_decay=1e-4)
+        self.sched = torch.optim.lr_scheduler.OneCycleLR(self.opt, max_lr=lr, total_steps=steps,
+                                                         pct_start=0.1)
+        self.device, self.mountain_weight, self.loss = device, mountain_weight, None
+
+    def step(self, x, y) -> None:
+        """One optimiser step on a batch (x, labels) of arrays."""
+        import torch
+
+        loss = loss_fn(self.net(torch.from_numpy(x).to(self.device)),
+                       torch.from_numpy(y).to(self.device), self.mountain_weight)
+        self.opt.zero_grad()
+        loss.backward()
+        self.opt.step()
+        self.sched.step()
+        self.loss = loss.item() if self.loss is None else 0.98 * self.loss + 0.02 * loss.item()
+
+    def weights_on_cpu(self):
+        """A copy of the network on the CPU, in inference mode (training goes on on its device)."""
+        copy = build_model()
+        copy.load_state_dict({n: t.cpu() for n, t in self.net.state_dict().items()})
+        return copy.eval()
+
+
 def train(images, *, steps, seed, batch=8, lr=3e-3, weights=(0.45, 0.35, 0.2), nosky_boost=2.0,
           device="cpu", workers=0, mountain_weight=MOUNTAIN_WEIGHT, log=sys.stderr):
-    import torch
-
-    torch.manual_seed(seed)
-    net = build_model().to(device)
-    opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.1)
+    member = Member(steps=steps, seed=seed, lr=lr, device=device, mountain_weight=mountain_weight)
     p = draw_probabilities(images, weights, nosky_boost)
-    t0, run = time.time(), None
-    net.train()
+    t0 = time.time()
     for step, (x, y) in enumerate(batches(images, p, batch, seed, steps, workers)):
-        loss = loss_fn(net(torch.from_numpy(x).to(device)), torch.from_numpy(y).to(device),
-                       mountain_weight)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-        run = loss.item() if run is None else 0.98 * run + 0.02 * loss.item()
+        member.step(x, y)
         if step % 100 == 0 or step == steps - 1:
-            print(f"step {step}: loss {run:.4f} ({time.time() - t0:.0f} s)", file=log, flush=True)
-    return net.cpu().eval()
+            print(f"step {step}: loss {member.loss:.4f} ({time.time() - t0:.0f} s)", file=log,
+                  flush=True)
+    return member.net.cpu().eval()
 
 
 def train_members(images, fold_of_image, k, *, steps, seed, out_dir: Path, meta: dict, batch=8,
                   lr=3e-3, nosky_boost=2.0, device="cpu", workers=0, checkpoint_every=0,
                   mountain_weight=MOUNTAIN_WEIGHT, log=sys.stderr):
     """The ``k`` fold members side by side from one stream of crops (``shared_batches``),
-    each as :func:`train` makes it (its own optimiser and one-cycle schedule, the same initial
-    weights). Every member is written to ``out_dir/fold_K.{onnx,json,pt}`` at the end and every
-    ``checkpoint_every`` steps (0: only at the end; a checkpoint's ``steps_done`` says how far it
-    got, so that a run cut short still leaves members to look at)."""
+    each a :class:`Member` as :func:`train` makes it (the same initial weights). Every member is
+    written to ``out_dir/fold_K.{onnx,json,pt}`` at the end and every ``checkpoint_every`` steps
+    (0: only at the end; a checkpoint's ``steps_done`` says how far it got, so that a run cut
+    short still leaves members to look at)."""
     import torch
 
-    nets, opts, scheds = [], [], []
-    for _ in range(k):
-        torch.manual_seed(seed)
-        net = build_model().to(device)
-        opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
-        nets.append(net.train())
-        opts.append(opt)
-        scheds.append(torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps,
-                                                          pct_start=0.1))
+    members = [Member(steps=steps, seed=seed, lr=lr, device=device,
+                      mountain_weight=mountain_weight) for _ in range(k)]
     held = {m: sorted(im[0] for im, f in zip(images, fold_of_image) if f == m) for m in range(k)}
 
     def save(done):
-        for m, net in enumerate(nets):
+        for m, member in enumerate(members):
             out = out_dir / f"fold_{m}.onnx"
-            copy = build_model()
-            copy.load_state_dict({n: t.cpu() for n, t in net.state_dict().items()})
-            export(copy.eval(), out, {**meta, "fold": m, "held_out": held[m],
-                                      "trained_on": int(sum(f != m for f in fold_of_image)),
-                                      "steps_done": done})
-            torch.save(copy.state_dict(), out.with_suffix(".pt"))
+            net = member.weights_on_cpu()
+            export(net, out, {**meta, "fold": m, "held_out": held[m],
+                              "trained_on": int(sum(f != m for f in fold_of_image)),
+                              "steps_done": done})
+            torch.save(net.state_dict(), out.with_suffix(".pt"))
 
-    t0, run = time.time(), [None] * k
+    t0 = time.time()
     stream = shared_batches(images, fold_of_image, k, batch=batch, seed=seed, workers=workers,
                             nosky_boost=nosky_boost)
-    for step in range(steps):
-        for m, (x, y) in enumerate(next(stream)):
-            loss = loss_fn(nets[m](torch.from_numpy(x).to(device)), torch.from_numpy(y).to(device),
-                           mountain_weight)
-            opts[m].zero_grad()
-            loss.backward()
-            opts[m].step()
-            scheds[m].step()
-            run[m] = loss.item() if run[m] is None else 0.98 * run[m] + 0.02 * loss.item()
-        if step % 100 == 0 or step == steps - 1:
-            print(f"step {step}: loss " + " ".join(f"{r:.4f}" for r in run)
-                  + f" ({time.time() - t0:.0f} s)", file=log, flush=True)
-        if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
-            save(step + 1)
-    stream.close()
+    try:
+        for step in range(steps):
+            for member, (x, y) in zip(members, next(stream)):
+                member.step(x, y)
+            if step % 100 == 0 or step == steps - 1:
+                print(f"step {step}: loss " + " ".join(f"{m.loss:.4f}" for m in members)
+                      + f" ({time.time() - t0:.0f} s)", file=log, flush=True)
+            if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
+                save(step + 1)
+    finally:
+        stream.close()  # ends the crop workers, also when training fails
     save(steps)
 
 
