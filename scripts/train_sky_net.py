@@ -388,13 +388,13 @@ def main(argv=None):
     if not images:
         raise SystemExit("no labelled images found")
     fold_of = folds({im[1] for im in images}, args.folds)
+    recipe = {"channels": 5, "steps": args.steps, "seed": args.seed, "folds": args.folds,
+              "nosky_boost": args.nosky_boost, "mountain_weight": args.mountain_weight,
+              "sims": sims, "device": args.device, "workers": args.workers,
+              "torch": torch.__version__}
     if args.all_folds:
         t0 = time.time()
-        meta = {"channels": 5, "steps": args.steps, "seed": args.seed, "folds": args.folds,
-                "nosky_boost": args.nosky_boost, "mountain_weight": args.mountain_weight,
-                "sims": sims, "device": args.device,
-                "workers": args.workers, "shared_stream": True, "torch": torch.__version__,
-                "torch_trained": torch.__version__}
+        meta = {**recipe, "shared_stream": True, "torch_trained": torch.__version__}
         train_members(images, [fold_of[im[1]] for im in images], args.folds, steps=args.steps,
                       seed=args.seed, out_dir=out.parent, meta=meta, nosky_boost=args.nosky_boost,
                       device=args.device, workers=args.workers,
@@ -410,13 +410,8 @@ def main(argv=None):
     t0 = time.time()
     net = train(train_set, steps=args.steps, seed=args.seed, nosky_boost=args.nosky_boost,
                 device=args.device, workers=args.workers, mountain_weight=args.mountain_weight)
-    meta = {"channels": 5, "steps": args.steps, "seed": args.seed, "folds": args.folds,
-            "nosky_boost": args.nosky_boost, "mountain_weight": args.mountain_weight,
-            "fold": args.fold, "held_out": held,
-            "sims": sims,
-            "device": args.device, "workers": args.workers,
-            "trained_on": len(train_set), "train_seconds": round(time.time() - t0),
-            "torch": torch.__version__}
+    meta = {**recipe, "fold": args.fold, "held_out": held, "trained_on": len(train_set),
+            "train_seconds": round(time.time() - t0)}
     old = out.with_suffix(".json")
     if old.is_file():  # keep a calibration written earlier for this model's recipe
         cal = json.loads(old.read_text()).get("calibration")
