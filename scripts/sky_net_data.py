@@ -254,9 +254,10 @@ def batches(images, p, batch, seed, steps, workers, *, index=False, keyed=False)
     import itertools
 
     cut = slice(None) if index else slice(2)
+    ks = range(steps) if steps is not None else itertools.count()
     if workers <= 0:
         rng = np.random.default_rng(seed)
-        for k in range(steps) if steps is not None else itertools.count():
+        for k in ks:
             yield _batch(images, p, batch, np.random.default_rng([seed, k]) if keyed else rng)[cut]
         return
     import collections
@@ -265,7 +266,7 @@ def batches(images, p, batch, seed, steps, workers, *, index=False, keyed=False)
     with multiprocessing.get_context("spawn").Pool(
             workers, _worker_init, (images, p, batch, seed)) as pool:
         ahead = collections.deque()
-        for k in range(steps) if steps is not None else itertools.count():
+        for k in ks:
             left = steps - k if steps is not None else 4 * workers
             while len(ahead) < min(4 * workers, left):  # bounded: batches are 11 MB each
                 ahead.append(pool.apply_async(_worker_batch, (k + len(ahead),)))

@@ -130,10 +130,11 @@ def _render_one(layers, origin, proj: Projection, scene: Scene, planet, name: st
     rocks = scene.rocks_array()
     cast = cast_layers(layers, origin, proj, planet=planet, rocks=rocks)
     terrain_sky = ~np.isfinite(cast.terrain_t)
+    sky = cast.kind == 0  # what the camera sees as sky: neither terrain nor a boulder
     rows = skyline_layers(layers, origin, proj, terrain_sky, planet=planet)
     vis = rows
     if len(rocks):
-        vis = skyline_layers(layers, origin, proj, cast.kind == 0, planet=planet, rocks=rocks)
+        vis = skyline_layers(layers, origin, proj, sky, planet=planet, rocks=rocks)
     img = shade(cast, scene, focal_px=focal_px, rng=rng, sun_pixel=sun_pixel, vignetting=vignetting,
                 edge_rows=vis)
     _write_png(out / name, img)
@@ -141,7 +142,6 @@ def _render_one(layers, origin, proj: Projection, scene: Scene, planet, name: st
     write_skyline_json(out / f"{stem}.skyline.json", Skyline(rows, proj.width, proj.height, name))
     # A column without a skyline row is all sky or all ground (the skyline above the frame's
     # top): the row cannot say which, these ranges can (what a trainer labels them)
-    sky = cast.kind == 0
     info = {"image": name, "terrain_skyline_columns": int(np.isfinite(rows).sum()),
             "ground_only_columns": column_ranges(~sky.any(axis=0)),
             "sky_only_columns": column_ranges(sky.all(axis=0))}
