@@ -115,7 +115,8 @@ def rock_layout(dem: Dem, origin, truth: Truth, camera_height_m: float, az_lo: f
 
 def lake_level(dem: Dem, x: float, y: float, strength: float, radius_m: float = 2000.0) -> float:
     """Level [m] of a lake around (x, y): the ``5 + 35 strength`` percentile of the DEM's heights
-    within ``radius_m``, and at least 0.3 m under the ground at (x, y) so the rover stays dry.
+    in the square of half-side ``radius_m`` [m] centred there, and at least 0.3 m under the
+    ground at (x, y) so the rover stays dry.
     One level for the whole acquisition: overlapping frames see the same shoreline."""
     c0, r0 = dem.xy_to_colrow(x - radius_m, y + radius_m)
     c1, r1 = dem.xy_to_colrow(x + radius_m, y - radius_m)
