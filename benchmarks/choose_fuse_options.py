@@ -33,7 +33,7 @@ from bench_detect import dev_pairs, site_fold_models  # noqa: E402
 from cv_net import NO_SKY  # noqa: E402
 
 from skyfix.detect import DpOptions, combine_scores, detect_skyline, score_skyline  # noqa: E402
-from skyfix.detect.net import DEFAULT_NET  # noqa: E402
+from skyfix.detect.net import load_sky_net  # noqa: E402
 from skyfix.detect.options import PRESETS, check_options  # noqa: E402
 from skyfix.errors import ParameterError  # noqa: E402
 
@@ -90,8 +90,7 @@ def main(argv=None):
     sims = sorted(p for p in Path(args.cv_sim).iterdir() if p.is_dir())
     if not sims:
         raise SystemExit(f"no simulated sets in {args.cv_sim}: run scripts/make_sky_sims.sh first")
-    meta = json.loads(DEFAULT_NET.with_suffix(".json").read_text())
-    member = {n: int(m.split("_")[1]) for m, ns in meta["held_out_by_member"].items() for n in ns}
+    member = load_sky_net().held_out_members()
     pairs = [(f.name, *p) for f in folders for p in dev_pairs(f)]
     missing = [n for _, n, _, _ in pairs if n not in member]
     if missing:
