@@ -23,6 +23,7 @@ from skyfix.cli.main import cli
 from skyfix.database import (MARKER_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG, Grid, build_database,
                              marker_name, open_database, quantise, verify_database)
 from skyfix.database.chunks import chunk_reader
+from skyfix.database.layout import coarse_of
 from skyfix.dem import Dem, file_checksum, load_dem, write_dem
 from skyfix.errors import DatabaseError, OutputExistsError, OutsideDemError, ParameterError
 from skyfix.horizon import render_horizons
@@ -326,6 +327,7 @@ def test_verify_sample_catches_a_store_that_disagrees_with_the_dem(dem_path, cle
     el = np.asarray(g["elevation"][:])
     k = 30  # every stored skyline raised by 30 quantisation steps = 0.3 deg
     g["elevation"][:] = np.where(el == MISSING, el, el + k).astype(el.dtype)
+    g["coarse"][:] = coarse_of(g["elevation"][:])  # the derived index made to agree as well
     for mp in (bad / MARKER_DIR).glob("r*_c*/zarr.json"):  # re-sign the blocks: the checksums stay consistent
         doc = json.loads(mp.read_text())
         m = doc["attributes"]
@@ -364,6 +366,81 @@ def test_info_reports_metadata_completeness_and_size(clean_db):
     res = CliRunner().invoke(cli, ["info", str(clean_db), "--json"])
     d = json.loads(res.stdout)
     assert d["complete"] and d["positions"] == 480 and d["size_bytes"] > 480 * 10
+
+
+def test_coarse_of_is_the_mean_of_four_bins_at_every_second_position():
+    """Against a direct loop: row 2i, col 2j, bins 4g..4g+3 averaged, no terrain taken as 0,
+    rounded to the step; odd block sides keep their last row and column."""
+    rng = np.random.default_rng(3)
+    raw = rng.integers(-9000, 9000, (7, 5, 16)).astype(np.int16)
+    raw[rng.random(raw.shape) < 0.1] = MISSING
+    got = coarse_of(raw)
+    assert got.shape == (4, 3, 4) and got.dtype == np.int16
+    for i in range(4):
+        for j in range(3):
+            for g in range(4):
+                v = [0 if b == MISSING else int(b) for b in raw[2 * i, 2 * j, 4 * g:4 * g + 4]]
+                assert got[i, j, g] == round(sum(v) / 4)  # both round half to even
+
+
+def test_a_build_writes_the_coarse_index_of_its_skylines(clean_db):
+    g = zarr.open_group(str(clean_db), mode="r")
+    el, co = np.asarray(g["elevation"][:]), np.asarray(g["coarse"][:])
+    assert co.shape == (10, 12, 18)
+    np.testing.assert_array_equal(co, coarse_of(el))
+    db = open_database(clean_db)
+    assert db.has_coarse_index
+    np.testing.assert_array_equal(db.read_coarse(2, 1), coarse_of(el[16:20, 8:16]))
+    res = CliRunner().invoke(cli, ["info", str(clean_db)])
+    assert "coarse index 9 of 9 blocks" in res.output
+
+
+def test_a_store_without_the_coarse_index_gets_it_from_the_build_command(dem_path, clean_db, tmp_path):
+    """A store built before the index (its folder gone, or a run adding it killed part-way) is
+    still read and searched the older way; verify and info say so, and the same build-db
+    command adds it, from the stored skylines, identical to a fresh build's."""
+    import shutil
+
+    args = [str(dem_path), "--out", str(tmp_path / "old.zarr"), "--bounds", *map(str, BOUNDS),
+            "--spacing-m", "10", "--azimuth-bins", "72", "--block-positions", "8", "--workers", "0",
+            "--no-progress"]
+    for lose in ("all", "some"):
+        old = tmp_path / "old.zarr"
+        shutil.rmtree(old, ignore_errors=True)
+        shutil.copytree(clean_db, old)
+        if lose == "all":
+            shutil.rmtree(old / "coarse")
+        else:
+            (old / "coarse" / "c" / "1" / "2" / "0").unlink()
+        db = open_database(old)
+        assert db.is_complete and not db.has_coarse_index
+        rep = verify_database(old, samples=0)
+        assert rep.ok and any("no coarse index" in n for n in rep.notes)
+        assert "rerun the build command to add it" in CliRunner().invoke(cli, ["info", str(old)]).output
+        res = CliRunner().invoke(cli, ["build-db", *args])
+        assert res.exit_code == 0, res.output
+        assert f"coarse index added to {9 if lose == 'all' else 1} block" in res.output
+        assert open_database(old).has_coarse_index
+        assert _files(old) == _files(clean_db)
+    res = CliRunner().invoke(cli, ["build-db", *args])  # now complete: refused as before
+    assert res.exit_code != 0 and "already a complete database" in res.output
+
+
+def test_no_coarse_index_where_the_layout_cannot_hold_one(dem_path, tmp_path):
+    """Blocks of an odd side (a block's subgrid would start on an odd row) or bins not a multiple
+    of 4: no index, and the search reads every block as before."""
+    from skyfix.match import MatchConfig, match_database
+
+    for kw in ({"block": 5}, {"azimuth_bins": 70}):
+        out = tmp_path / f"db{len(list(tmp_path.iterdir()))}.zarr"
+        _build(dem_path, out, **kw)
+        db = open_database(out)
+        assert "coarse" not in zarr.open_group(str(out), mode="r") and not db.has_coarse_index
+        q = db.profiles_at(*db.xy_of(np.array([10]), np.array([12])))[0]
+        res = match_database(db, q, MatchConfig(min_observed=10, stride_min_coverage=0.0,
+                                                coarse_factor=2 if kw.get("azimuth_bins") else 4))
+        assert "coarse_index" not in res.timing and (res.candidates[0].row, res.candidates[0].col) == (10, 12)
+        assert verify_database(out, samples=0).ok and not verify_database(out, samples=0).notes
 
 
 def test_clear_errors(dem_path, clean_db, tmp_path):

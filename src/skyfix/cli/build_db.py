@@ -47,6 +47,10 @@ def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_dis
                        azimuth_bins=azimuth_bins, max_distance_m=max_distance_m, planet=planet,
                        workers=workers, scheduler=scheduler, overwrite=overwrite,
                        progress=not no_progress, block=block_positions)
-    click.echo(f"{r.path}: {r.n_blocks} blocks ({r.built} built now, {r.resumed_from} already there), "
-               f"{r.positions} skylines in {r.seconds:.1f} s ({r.skylines_per_s:,.0f}/s), "
-               f"{r.size_bytes / 1e6:.1f} MB on disk")
+    if r.indexed:
+        click.echo(f"{r.path}: coarse index added to {r.indexed} block{'s' * (r.indexed != 1)} built earlier (the search "
+                   "now decodes only the blocks it needs)")
+    if r.built or not r.indexed:
+        click.echo(f"{r.path}: {r.n_blocks} blocks ({r.built} built now, {r.resumed_from} already "
+                   f"there), {r.positions} skylines in {r.seconds:.1f} s ({r.skylines_per_s:,.0f}/s), "
+                   f"{r.size_bytes / 1e6:.1f} MB on disk")

@@ -52,6 +52,11 @@ def _print(d: dict) -> None:
         + (f" built, DAMAGED: {len(d['blocks_data_missing'])} of them without their data files"
            if d["blocks_data_missing"] else
            " (complete)" if d["complete"] else " (INCOMPLETE: rerun the build command to finish)"),
+        f"coarse index {d['coarse_index_blocks']} of {d['n_blocks']} blocks"
+        + (" (the search decodes only the blocks its coarse pass keeps)"
+           if d["coarse_index_blocks"] == d["n_blocks"] else
+           " (rerun the build command to add it: the search then decodes only the blocks it needs)"
+           if d["coarse_index_possible"] else " (not possible: odd block side or bins not a multiple of 4)"),
         f"size         {d['size_bytes'] / 1e6:.1f} MB on disk, "
         + (f"{d['bytes_per_skyline']:.0f} bytes per built skyline" if d["bytes_per_skyline"] is not None
            else "no skyline built yet"),

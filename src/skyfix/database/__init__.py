@@ -11,6 +11,11 @@ Arrays (``dimension_names`` in brackets)
     (ny, nx) [m] shortest ray of the position; ``edge_bins`` int16 (ny, nx) number of bins whose
     ray stopped at the DEM edge before ``max_distance_m`` (a skyline may lie beyond the DEM there).
     ``x`` (nx,), ``y`` (ny,), ``azimuth`` (bins,) coordinates [m, m, deg].
+    ``coarse`` int16 (ceil(ny / 2), ceil(nx / 2), bins / 4) [coarse_y, coarse_x, coarse_azimuth]:
+    the coarse index, ``elevation`` at every second row and column with four neighbouring bins
+    averaged (no terrain counted as 0 deg), in the same scale; derived data the search's coarse
+    pass reads instead of every skyline (:mod:`.coarse`). Stores built before 2026-11-27 lack it
+    until the same ``skyfix build-db`` command adds it; they are searched the older way meanwhile.
 
 Blocks
     The grid is cut into blocks of ``block`` x ``block`` positions (64 x 64 by default), one zarr
@@ -21,8 +26,9 @@ Blocks
     :func:`verify_database` can tell an intact block from a corrupted one.
 
 Files: :mod:`.layout` (format constants, the grid, quantisation), :mod:`.executors` (where blocks
-run), :mod:`.integrity` (the state of a store on disk), :mod:`.build`, :mod:`.store` (reading),
-:mod:`.verify` (checks and ``skyfix info``).
+run), :mod:`.integrity` (the state of a store on disk), :mod:`.chunks` (the skyline arrays' codecs
+and their direct decoding), :mod:`.coarse` (the coarse index), :mod:`.build`, :mod:`.store`
+(reading), :mod:`.verify` (checks and ``skyfix info``).
 """
 
 from .build import (BuildResult, build_database, build_params, check_build_size, dir_size,

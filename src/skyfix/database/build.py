@@ -37,12 +37,13 @@ from .. import __version__
 from .._io import write_json
 from ..errors import DatabaseError, OutputExistsError, ParameterError
 from ..planets import Planet, get_planet, resolve_planet
+from .chunks import skyline_codecs
+from .coarse import add_coarse_index, create_coarse_array, write_coarse_block
 from .executors import check_executor_options, make_executor
-from .integrity import clean_partials, intact_blocks, root_state
-from .chunks import TRANSPOSE
-from .layout import (BLOCK, COMPRESSED_SHARE, FORMAT, FORMAT_VERSION, Grid, MARKER_DIR,
-                     MAX_BUILD_BYTES, MAX_POSITIONS, META_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG,
-                     array_sha256, marker_document, marker_name, quantise)
+from .integrity import clean_partials, indexed_blocks, intact_blocks, root_state
+from .layout import (BLOCK, COARSE, COMPRESSED_SHARE, DATA_ARRAYS, FORMAT, FORMAT_VERSION, Grid,
+                     MARKER_DIR, MAX_BUILD_BYTES, MAX_POSITIONS, META_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG,
+                     array_sha256, has_coarse_layout, marker_document, marker_name, quantise)
 
 
 log = logging.getLogger(__package__)  # messages name the stage, as before the split
@@ -86,11 +87,14 @@ def dem_for(path, sha256: str):
 
 
 def open_arrays(out: str, mode: str = "r+"):
-    """The store's four data arrays by name (zarr arrays of the group at ``out``)."""
+    """The store's four data arrays by name (zarr arrays of the group at ``out``), and under
+    :data:`~.layout.COARSE` its coarse index (None in a store created without one)."""
     import zarr
 
     g = zarr.open_group(out, mode=mode)
-    return {name: g[name] for name in ("elevation", "ground_z", "min_ray_m", "edge_bins")}
+    arrays = {name: g[name] for name in DATA_ARRAYS}
+    arrays[COARSE] = g[COARSE] if COARSE in g else None
+    return arrays
 
 
 def render_block(dem, spec: _BuildSpec, br: int, bc: int) -> dict:
@@ -126,6 +130,8 @@ def _build_block(spec: _BuildSpec, br: int, bc: int) -> tuple[int, int, int]:
     arrays = open_arrays(spec.out)
     for name, a in data.items():
         arrays[name][rs, cs] = a
+    if arrays.get(COARSE) is not None:
+        write_coarse_block(arrays[COARSE], spec.grid, br, bc, data["elevation"])
     marker = {"block": [br, bc], "row0": rs.start, "col0": cs.start, "rows": rs.stop - rs.start,
               "cols": cs.stop - cs.start, "sha256": {k: array_sha256(v) for k, v in data.items()}}
     # Written only after every chunk is on disk: a block without a marker gets redone.
@@ -163,17 +169,6 @@ def build_params(*, dem_sha256: str, grid: Grid, bounds, camera_height_m: float,
             "skip_tol_deg": SKIP_TOL_DEG}
 
 
-def skyline_codecs(block: int) -> dict:
-    """The zarr codecs of the elevation array for blocks of ``block`` x ``block`` positions."""
-    from zarr.codecs import Delta, Shuffle, TransposeCodec, ZstdCodec
-
-    # numcodecs' Delta flattens its input in memory order when that is Fortran-contiguous, which a
-    # transposed block of one position (1, 1, bins) is: no transpose there (nothing to predict from)
-    order = [TransposeCodec(order=TRANSPOSE)] if block > 1 else []
-    return {"filters": [*order, Delta(dtype="i2")],
-            "compressors": [Shuffle(elementsize=2), ZstdCodec(level=9, checksum=True)]}
-
-
 def _create_store(out: Path, grid: Grid, bins: int, attrs: dict) -> None:
     """Create the empty store atomically: built beside ``out``, then renamed onto it."""
     import zarr
@@ -189,6 +184,7 @@ def _create_store(out: Path, grid: Grid, bins: int, attrs: dict) -> None:
                        dtype="int16", fill_value=MISSING, dimension_names=("y", "x", "azimuth"),
                        attributes={"units": "deg", "scale_deg": SCALE_DEG, "missing": MISSING},
                        **skyline_codecs(b))
+        create_coarse_array(g, grid, bins)
         small = {"compressors": [ZstdCodec(level=9, checksum=True)]}
         g.create_array("ground_z", shape=grid.shape, chunks=(b, b), dtype="float32", fill_value=np.nan,
                        dimension_names=("y", "x"), attributes={"units": "m"}, **small)
@@ -218,7 +214,8 @@ def _differences(old: dict, new: dict) -> list[str]:
 
 @dataclass(frozen=True)
 class BuildResult:
-    """What a build did: path, blocks built now / already there, positions, seconds, bytes."""
+    """What a build did: path, blocks built now / already there, positions, seconds, bytes, and
+    the blocks built earlier whose coarse index it added."""
 
     path: Path
     n_blocks: int
@@ -228,6 +225,7 @@ class BuildResult:
     seconds: float
     skylines_per_s: float
     size_bytes: int
+    indexed: int = 0
 
 
 def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: float = 1.5,
@@ -346,6 +344,9 @@ def _build(out: Path, action: str, dem_path, dem, grid: Grid, params: dict, plan
                       single_thread=single)
     _DEM_CACHE.clear()
     _DEM_CACHE[(spec.dem_path, spec.dem_sha256)] = dem  # the in-process path reuses this load
+    n_indexed = 0
+    if resumed:  # a store begun without the coarse index gets it for the blocks already built
+        n_indexed = add_coarse_index(out, progress=progress)
     done = intact_blocks(out, grid)
     todo = [b for b in grid.blocks() if b not in done]
     n_blocks = len(grid.blocks())
@@ -364,14 +365,15 @@ def _build(out: Path, action: str, dem_path, dem, grid: Grid, params: dict, plan
         raise DatabaseError(f"{len(missing)} blocks of {out} have no marker or no data after the build: "
                             "run it again")
     return BuildResult(out, n_blocks, len(todo), len(done), positions, dt,
-                       positions / dt if dt > 0 else float("nan"), dir_size(out))
+                       positions / dt if dt > 0 else float("nan"), dir_size(out), n_indexed)
 
 
 def _plan_output(out: Path, params: dict, grid: Grid, overwrite: bool) -> str:
     """What to do with ``out``, refusing what must not happen; changes nothing on disk.
 
     Returns ``new`` (nothing there), ``rmdir`` (an empty folder), ``unlink`` (a file, with
-    --overwrite), ``replace`` (a skyfix database, with --overwrite) or ``resume``.
+    --overwrite), ``replace`` (a skyfix database, with --overwrite), ``resume``, or ``index`` (a
+    complete store built without the coarse index: it is added).
     """
     if not out.exists():
         return "new"
@@ -398,14 +400,27 @@ def _plan_output(out: Path, params: dict, grid: Grid, overwrite: bool) -> str:
         raise DatabaseError(f"{out} was built with other parameters ({'; '.join(diffs)}): use the "
                             "original parameters to resume it, or --overwrite to start afresh")
     if len(intact_blocks(out, grid)) == len(grid.blocks()):
+        if _index_missing(out, grid, params["azimuth_bins"]):
+            return "index"
         raise OutputExistsError(f"{out} is already a complete database built with these parameters: "
                                 "pass --overwrite to rebuild it")
     return "resume"
 
 
+def _index_missing(out: Path, grid: Grid, bins: int) -> bool:
+    """Whether a store lacks coarse-index chunks that its layout allows (built before the index
+    existed, or a run adding it was killed)."""
+    import zarr
+
+    if not has_coarse_layout(grid.block, bins):
+        return False
+    g = zarr.open_group(str(out), mode="r")
+    return len(indexed_blocks(out, g, grid, bins)) < len(grid.blocks())
+
+
 def _apply_plan(out: Path, action: str) -> bool:
     """Carry out :func:`_plan_output`'s decision; return True to resume ``out``."""
-    if action == "resume":
+    if action in ("resume", "index"):
         clean_partials(out)
         return True
     if action == "replace":

@@ -7,9 +7,10 @@ file is read, zstd decompresses it (its checksum checked) and one numba pass und
 and the delta together: 1.9 s of the search's reader thread for the same data
 (``benchmarks/bench_locate.py``), the arrays identical.
 
-Only the layouts skyfix writes take this path (``build.py``: optionally Transpose to (azimuth, y,
-x), then Delta(i2), little-endian bytes, Shuffle(2), zstd; regular chunks, default chunk keys, a
-local folder). Any other array, and a big-endian machine, is read through zarr.
+Only the layouts skyfix writes take this path (:func:`skyline_codecs`, for ``elevation`` and the
+coarse index: optionally Transpose to (azimuth, y, x), then Delta(i2), little-endian bytes,
+Shuffle(2), zstd; regular chunks, default chunk keys, a local folder). Any other array, and a
+big-endian machine, is read through zarr.
 """
 
 from __future__ import annotations
@@ -27,6 +28,18 @@ LAYOUT = ("numcodecs.delta", "bytes", "numcodecs.shuffle", "zstd")
 #: the transpose a store's chunks take before the delta: (y, x, azimuth) -> (azimuth, y, x), so
 #: that the delta runs from each position to its neighbour at the same azimuth
 TRANSPOSE = (2, 0, 1)
+
+
+def skyline_codecs(block: int) -> dict:
+    """The zarr codecs of a skyline array (``elevation``, ``coarse``) in chunks of ``block`` x
+    ``block`` positions."""
+    from zarr.codecs import Delta, Shuffle, TransposeCodec, ZstdCodec
+
+    # numcodecs' Delta flattens its input in memory order when that is Fortran-contiguous, which a
+    # transposed block of one position (1, 1, bins) is: no transpose there (nothing to predict from)
+    order = [TransposeCodec(order=TRANSPOSE)] if block > 1 else []
+    return {"filters": [*order, Delta(dtype="i2")],
+            "compressors": [Shuffle(elementsize=2), ZstdCodec(level=9, checksum=True)]}
 
 
 def chunk_reader(array):

@@ -1,7 +1,7 @@
 """What state a store on disk is in: its root metadata and attributes checked by kind, the arrays
-against the grid, which blocks are built and intact (a marker and every chunk file present), and
-the clean-up of partial writes. Every read and every resume starts here, so that a damaged or
-foreign folder is refused by name rather than read wrong.
+against the grid, which blocks are built and intact (a marker and every chunk file present), which
+have their coarse index, and the clean-up of partial writes. Every read and every resume starts
+here, so that a damaged or foreign folder is refused by name rather than read wrong.
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DatabaseError
-from .layout import DATA_ARRAYS, FORMAT, Grid, MARKER_DIR, array_sha256, read_marker
+from .layout import (COARSE, COARSE_FACTOR, COARSE_STRIDE, DATA_ARRAYS, FORMAT, Grid, MARKER_DIR,
+                     array_sha256, coarse_shape, has_coarse_layout, read_marker)
 
 
 def root_state(path: Path) -> tuple[str, dict | str | None]:
@@ -214,3 +215,26 @@ def clean_partials(path: Path) -> int:
                 os.unlink(os.path.join(d, f))
                 n += 1
     return n
+
+
+def coarse_array_ok(group, grid: Grid, bins: int) -> bool:
+    """Whether the group holds a ``coarse`` array of the shape and chunks this grid needs."""
+    if not has_coarse_layout(grid.block, bins):
+        return False
+    try:
+        a = group[COARSE]
+    except KeyError:
+        return False
+    b = grid.block // COARSE_STRIDE
+    return (tuple(a.shape) == coarse_shape(grid, bins) and str(a.dtype) == "int16"
+            and tuple(a.chunks) == (b, b, bins // COARSE_FACTOR))
+
+
+def indexed_blocks(path, group, grid: Grid, bins: int) -> set[tuple[int, int]]:
+    """Blocks whose coarse chunk file is there (one listing of the array's folder); empty when the
+    store has no usable ``coarse`` array."""
+    if not coarse_array_ok(group, grid, bins):
+        return set()
+    have = chunk_keys(Path(path) / COARSE)
+    key = group[COARSE].metadata.encode_chunk_key
+    return {(br, bc) for br, bc in grid.blocks() if key((br, bc, 0)) in have}

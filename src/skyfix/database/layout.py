@@ -51,6 +51,18 @@ MARKER_DIR = f"{META_DIR}/blocks"
 DATA_ARRAYS = ("elevation", "ground_z", "min_ray_m", "edge_bins")
 
 
+#: the coarse index: array ``coarse`` (ny', nx', bins / COARSE_FACTOR), int16 in the elevation's
+#: scale, holding every COARSE_STRIDE-th position along rows and columns (row 2i, col 2j at [i, j])
+#: with each COARSE_FACTOR neighbouring azimuth bins averaged (bins without terrain counted as
+#: 0 deg, as the search's coarse pass takes them), rounded to the step. Derived from ``elevation``
+#: alone: a search reads it for its coarse pass (1/16 of the skylines' bytes) and then only the
+#: blocks whose positions survive it. Optional: stores built before 2026-11-27 lack it until
+#: ``skyfix build-db`` adds it, and a store without it is searched the older way.
+COARSE = "coarse"
+COARSE_STRIDE = 2
+COARSE_FACTOR = 4
+
+
 #: a build larger than this is refused up front (the 7 x 7 km area at 5 m is 1.96 M skylines, 425 MB)
 MAX_POSITIONS = 1_000_000_000
 
@@ -159,6 +171,36 @@ def dequantise(raw: np.ndarray, scale_deg: float = SCALE_DEG, missing: int = MIS
     out = raw.astype(np.float32) * np.float32(scale_deg)
     out[raw == missing] = np.nan
     return out
+
+
+def has_coarse_layout(block: int, bins: int) -> bool:
+    """Whether a store of ``block``-position blocks and ``bins`` azimuth bins can hold the coarse
+    index: each block's subgrid must start on an even row and column, and the bins group evenly."""
+    return block % COARSE_STRIDE == 0 and bins % COARSE_FACTOR == 0
+
+
+def coarse_shape(grid: "Grid", bins: int) -> tuple[int, int, int]:
+    """Shape of the ``coarse`` array of a grid: every second row and column, bins / 4."""
+    s = COARSE_STRIDE
+    return (-(-grid.ny // s), -(-grid.nx // s), bins // COARSE_FACTOR)
+
+
+def coarse_of(raw: np.ndarray, missing: int = MISSING) -> np.ndarray:
+    """A block's coarse index: int16 (ceil(rows / 2), ceil(cols / 2), bins / 4) from its int16
+    (rows, cols, bins) raw skylines (:data:`COARSE`). The block must start on an even grid row and
+    column (:func:`has_coarse_layout`)."""
+    sub = np.asarray(raw)[::COARSE_STRIDE, ::COARSE_STRIDE]
+    r, c, n = sub.shape
+    v = np.where(sub == missing, 0, sub).astype(np.int32)
+    total = v.reshape(r, c, n // COARSE_FACTOR, COARSE_FACTOR).sum(axis=-1)
+    return np.rint(total / COARSE_FACTOR).astype(np.int16)
+
+
+def coarse_block_slices(grid: "Grid", br: int, bc: int) -> tuple[slice, slice]:
+    """Block (br, bc)'s rows and columns in the ``coarse`` array."""
+    rs, cs = grid.block_slices(br, bc)
+    s = COARSE_STRIDE
+    return slice(rs.start // s, -(-rs.stop // s)), slice(cs.start // s, -(-cs.stop // s))
 
 
 def array_sha256(a: np.ndarray) -> str:

@@ -16,9 +16,9 @@ from ..errors import DatabaseError, ParameterError
 from ..planets import Planet
 from .chunks import chunk_reader
 from .integrity import (absent_data, check_arrays, check_attrs, damaged, data_missing_message,
-                        done_blocks, is_int, root_state)
-from .layout import (DATA_ARRAYS, FORMAT, FORMAT_VERSION, Grid, MARKER_DIR, MISSING, SCALE_DEG,
-                     dequantise, marker_name)
+                        done_blocks, indexed_blocks, is_int, root_state)
+from .layout import (COARSE, COARSE_STRIDE, DATA_ARRAYS, FORMAT, FORMAT_VERSION, Grid, MARKER_DIR,
+                     MISSING, SCALE_DEG, coarse_block_slices, dequantise, marker_name)
 
 
 # --- reading ---------------------------------------------------------------------------------------
@@ -69,7 +69,8 @@ class SkylineDatabase:
         self._done = done
         self._absent = absent or {}  # built blocks whose chunk files are gone (see absent_data)
         self._arrays: dict = {}
-        self._elev_reader = _UNDECIDED  # see _elevation_reader
+        self._readers: dict = {}  # see _direct_reader
+        self._coarse = None  # see has_coarse_index
         gr = attrs["grid"]
         self.grid = Grid(float(gr["x0"]), float(gr["y0"]), float(gr["spacing_m"]), int(gr["shape"][0]),
                          int(gr["shape"][1]), int(gr["block_shape"][0]))
@@ -235,21 +236,42 @@ class SkylineDatabase:
     def read_stored(self, name: str, br: int, bc: int) -> np.ndarray:
         """:meth:`read_raw` without its checks: whatever zarr or the decoder gives or raises (the
         verifier's own access, which checks the bytes against the block's checksums itself)."""
-        rs, cs = self.grid.block_slices(br, bc)
-        if name == "elevation":  # the bulk of every search: decoded directly where it can be
-            read = self._elevation_reader()
+        rs, cs = (coarse_block_slices(self.grid, br, bc) if name == COARSE
+                  else self.grid.block_slices(br, bc))
+        if name in ("elevation", COARSE):  # the bulk of every search: decoded directly
+            read = self._direct_reader(name)
             if read is not None:
                 return read((br, bc, 0))[: rs.stop - rs.start, : cs.stop - cs.start]
         return np.asarray(self._array(name)[rs, cs])
 
-    def _elevation_reader(self):
-        """The direct chunk reader of the elevation array (:mod:`.chunks`), or None where zarr must
-        read it (another layout, or chunks that are not one block each); decided once."""
-        if self._elev_reader is _UNDECIDED:
-            a = self._array("elevation")
-            one_block = tuple(a.chunks[:2]) == (self.grid.block, self.grid.block)
-            self._elev_reader = chunk_reader(a) if one_block else None
-        return self._elev_reader
+    def _direct_reader(self, name: str):
+        """The direct chunk reader of the skyline array ``name`` (:mod:`.chunks`), or None where
+        zarr must read it (another layout, or chunks that are not one block each); decided once."""
+        read = self._readers.get(name, _UNDECIDED)
+        if read is _UNDECIDED:
+            a = self._array(name)
+            side = self.grid.block // (COARSE_STRIDE if name == COARSE else 1)
+            read = self._readers[name] = (chunk_reader(a) if tuple(a.chunks[:2]) == (side, side)
+                                          else None)
+        return read
+
+    @property
+    def indexed_blocks(self) -> set[tuple[int, int]]:
+        """Blocks whose coarse index chunk (:data:`~.layout.COARSE`) is there; listed once."""
+        if self._coarse is None:
+            self._coarse = indexed_blocks(self.path, self._g, self.grid, self.azimuth_bins)
+        return set(self._coarse)
+
+    @property
+    def has_coarse_index(self) -> bool:
+        """Whether the store is complete and holds its coarse index for every block: the search
+        then decodes the skylines only of the blocks its coarse pass keeps."""
+        return self.is_complete and len(self.indexed_blocks) == self.n_blocks
+
+    def read_coarse(self, br: int, bc: int) -> np.ndarray:
+        """Block (br, bc)'s coarse index, int16 (ceil(rows / 2), ceil(cols / 2), bins / 4) raw (see
+        :data:`~.layout.COARSE`); a DatabaseError naming the block where it cannot be read."""
+        return self.read_raw(COARSE, br, bc)
 
     def read_raw(self, name: str, br: int, bc: int) -> np.ndarray:
         """Array ``name``'s chunk of block (br, bc) as stored, shaped (rows, cols[, bins]).
@@ -262,6 +284,12 @@ class SkylineDatabase:
         try:
             return self.read_stored(name, br, bc)
         except Exception as e:  # a damaged chunk fails to decode (zstd checksum) in many ways
+            if name == COARSE:  # derived data: redone from the block's skylines, nothing rendered
+                key = self._array(COARSE).metadata.encode_chunk_key((br, bc, 0))
+                raise DatabaseError(
+                    f"{self.path}: block ({br}, {bc}) coarse index unreadable ({type(e).__name__}: "
+                    f"{e}): delete {self.path / COARSE / key} and rerun the build-db command (it "
+                    "adds the index again from the stored skylines)") from None
             raise DatabaseError(
                 f"{self.path}: block ({br}, {bc}) data unreadable ({name} chunk: {type(e).__name__}: "
                 f"{e}): run `skyfix verify {self.path}`, then delete the damaged blocks' markers "

@@ -13,7 +13,8 @@ import numpy as np
 from ..errors import ParameterError
 from .build import dir_size
 from .executors import is_whole_at_least_0
-from .layout import DATA_ARRAYS, SKIP_TOL_DEG, array_sha256, read_marker
+from .layout import (COARSE, DATA_ARRAYS, SKIP_TOL_DEG, array_sha256, coarse_of, has_coarse_layout,
+                     read_marker)
 from .store import open_database
 
 
@@ -64,6 +65,7 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
     db = open_database(path, allow_incomplete=True)
     rep = VerifyReport(Path(path), db.n_blocks, samples_requested=samples)
     good = []
+    indexed = db.indexed_blocks
     for br, bc in db.grid.blocks():
         try:
             marker = read_marker(path, br, bc)
@@ -85,8 +87,22 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
             continue
         if bad:
             rep.corrupt.append(((br, bc), f"checksum mismatch in {', '.join(bad)}"))
-        else:
-            good.append((br, bc))
+            continue
+        good.append((br, bc))
+        if (br, bc) in indexed:  # derived data: checked against the skylines it comes from
+            try:
+                ok = np.array_equal(db.read_stored(COARSE, br, bc), coarse_of(got["elevation"]))
+            except Exception as e:
+                ok, e_text = False, f"unreadable: {type(e).__name__}: {e}"
+            else:
+                e_text = "differs from the block's skylines"
+            if not ok:
+                rep.corrupt.append(((br, bc), f"coarse index {e_text}"))
+    unindexed = [b for b in good if b not in indexed]
+    if unindexed and has_coarse_layout(db.grid.block, db.azimuth_bins):
+        rep.notes.append(f"{len(unindexed)} of {db.n_blocks} blocks have no coarse index (a store "
+                         "built before it existed): rerun the build-db command to add it, and the "
+                         "search reads only the blocks it needs")
     if samples == 0:
         return rep
     if not good:
@@ -167,6 +183,8 @@ def describe(path) -> dict:
         "scale_deg": db.scale_deg, "dem": a["dem"],
         "blocks_done": db.blocks_done, "n_blocks": db.n_blocks, "complete": db.is_complete,
         "blocks_data_missing": [list(b) for b in db.blocks_data_missing],
+        "coarse_index_blocks": len(db.indexed_blocks),
+        "coarse_index_possible": has_coarse_layout(db.grid.block, db.azimuth_bins),
         "damage": db.damage_message(),
         "size_bytes": size,
         "positions_built": built,
