@@ -179,21 +179,46 @@ def test_deleted_ground_chunk_is_named_too(clean_db, tmp_path):
 @pytest.mark.parametrize("spoil", ["truncate", "garbage", "empty"])
 def test_spoiled_chunk_names_the_block_in_search_and_locate(clean_db, tmp_path, spoil):
     db_path = _copy(clean_db, tmp_path)
-    chunk = db_path / "elevation" / "c" / "0" / "1" / "0"
+    # block (1, 1) holds the query's position: its skylines are scored exactly in every search
+    chunk = db_path / "elevation" / "c" / "1" / "1" / "0"
     data = chunk.read_bytes()
     chunk.write_bytes({"truncate": data[:len(data) // 2], "garbage": b"\x00junk" * 50, "empty": b""}[spoil])
     db = open_database(db_path)  # the file is there: only decoding it tells
-    says = r"block \(0, 1\) data unreadable \(elevation chunk: .*skyfix verify.*r0000_c0001/zarr.json"
-    q = db.profiles_at(*db.xy_of(np.array([10]), np.array([12])))[0]
-    for prefetch in (True, False):
+    says = r"block \(1, 1\) data unreadable \(elevation chunk: .*skyfix verify.*r0001_c0001/zarr.json"
+    q = open_database(clean_db).profiles_at(*db.xy_of(np.array([10]), np.array([12])))[0]
+    for prefetch, index in ((True, True), (False, True), (True, False), (False, False)):
         with pytest.raises(DatabaseError, match=says):
-            match_database(db, q, MatchConfig(min_observed=10, prefetch=prefetch))
+            match_database(db, q, MatchConfig(min_observed=10, prefetch=prefetch, coarse_index=index))
     with pytest.raises(DatabaseError, match=says):
-        db.profiles_at(*db.xy_of(np.array([2]), np.array([9])))
+        db.profiles_at(*db.xy_of(np.array([9]), np.array([9])))
     res = _cli("locate", "--profile", _profile_file(open_database(clean_db), tmp_path), "--db", db_path)
-    assert res.exit_code == 2 and "block (0, 1) data unreadable" in res.output, res.output
+    assert res.exit_code == 2 and "block (1, 1) data unreadable" in res.output, res.output
     rep = verify_database(db_path, samples=0)
-    assert [b for b, _ in rep.corrupt] == [(0, 1)]
+    assert [b for b, _ in rep.corrupt] == [(1, 1)]
+
+
+def test_spoiled_coarse_index_chunk_is_named_and_redone(dem_path, clean_db, tmp_path):
+    """The coarse index is derived data: a spoiled chunk of it is named with what to delete, and
+    the build command makes it again from the stored skylines (nothing re-rendered)."""
+    db_path = _copy(clean_db, tmp_path)
+    chunk = db_path / "coarse" / "c" / "1" / "1" / "0"
+    chunk.write_bytes(chunk.read_bytes()[:40])
+    db = open_database(db_path)
+    q = db.profiles_at(*db.xy_of(np.array([10]), np.array([12])))[0]
+    with pytest.raises(DatabaseError, match=r"block \(1, 1\) coarse index unreadable .*delete .*"
+                                            r"coarse/c/1/1/0 and rerun the build-db command"):
+        match_database(db, q, MatchConfig(min_observed=10))
+    rep = verify_database(db_path, samples=0)
+    assert [b for b, _ in rep.corrupt] == [(1, 1)] and "coarse index" in dict(rep.corrupt)[(1, 1)]
+    chunk.unlink()
+    assert not open_database(db_path).has_coarse_index
+    # without its index the store is searched the older way, with the same answer
+    old = match_database(open_database(db_path), q, MatchConfig(min_observed=10))
+    new = match_database(open_database(clean_db), q, MatchConfig(min_observed=10))
+    assert (old.candidates[0].row, old.candidates[0].col) == (new.candidates[0].row, new.candidates[0].col)
+    r = _build(dem_path, db_path)
+    assert r.built == 0
+    assert _files(db_path) == _files(clean_db)
 
 
 # --- 4: metadata damaged -------------------------------------------------------------------------

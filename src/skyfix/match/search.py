@@ -18,6 +18,9 @@ Speed: a coarse pass on profiles averaged over ``coarse_factor`` bins (shifts ev
 ``coarse_factor`` deg) scores every position; only the best ``keep_fraction`` of each slice is then
 scored exactly at full resolution. The coarse pass is a filter, not a bound: its recall is
 measured in ``benchmarks/bench_locate.py``; ``coarse_factor=1`` scores every position exactly.
+A store that holds its coarse index (``skyfix.database``) is searched by :mod:`.indexed`: the
+coarse pass reads the index instead of every skyline, keeps the best of the whole store rather
+than of each slice, and only the blocks holding a survivor are decoded.
 
 World/body convention: ``world[az] = body[az - H]``, so query bin ``j`` (body) meets database bin
 ``j + s`` (world) and the heading is ``H = s * 360 / n``.
@@ -26,15 +29,17 @@ World/body convention: ``world[az] = body[az - H]``, so query bin ``j`` (body) m
 from __future__ import annotations
 
 import math
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..database import Block
+from ..database.layout import COARSE_FACTOR, COARSE_STRIDE
 from ..errors import DatabaseError, ParameterError
 from .memory import MISSING_RAW, grid_index
-from .scores import decimate_query, dense_query, prepare_query, score_dense, score_profiles
+from .indexed import indexed_search
+from .passes import EXACT_BATCH, ExactPass, blas_threads, prefetch, to_float
+from .scores import decimate_query, dense_query, prepare_query, score_dense
 
 
 @dataclass(frozen=True)
@@ -67,6 +72,10 @@ class MatchConfig:
     slice_rows : positions processed at once (memory ~ slice_rows * bins * 40 bytes)
     workers : threads (BLAS; one goes to the block reader when prefetching)
     prefetch : read and decompress the next blocks in a thread while scoring
+    coarse_index : where the store holds its coarse index (``skyfix.database``: every second
+        position, four bins averaged) and the search uses stride 2 and factor 4, take the coarse
+        pass from it and keep the best survivors of the whole store, not of each slice: only the
+        blocks holding one are then decoded (False: every block decoded, survivors per slice)
     min_observed : refuse queries with fewer observed bins than this
     """
 
@@ -82,6 +91,7 @@ class MatchConfig:
     workers: int = 2
     min_observed: int = 20
     prefetch: bool = True
+    coarse_index: bool = True
 
 
 PRESETS = {
@@ -104,11 +114,6 @@ class Candidate:
 
     def to_dict(self) -> dict:
         return {"x": self.x, "y": self.y, "heading_deg": self.heading_deg, "score": self.score}
-
-
-#: survivors of the coarse pass scored exactly at once: the FFT's temporaries are ~60 bytes per
-#: position and bin (12 MB at 512 x 360), and a larger batch gains nothing (~100 us per call)
-EXACT_BATCH = 512
 
 
 @dataclass
@@ -149,19 +154,6 @@ class MatchResult:
         return self._dense(self.headings)
 
 
-def _to_float(raw: np.ndarray, scale: float, missing: int) -> np.ndarray:
-    if raw.dtype == np.int16:
-        p = raw.astype(np.float32)
-        bad = raw == missing
-        if bad.any():
-            # No terrain along the ray (DEM edge): a flat horizon is the least-committal guess.
-            p[bad] = 0.0
-        p *= np.float32(scale)
-        return p
-    p = np.asarray(raw, np.float32)
-    return np.where(np.isfinite(p), p, np.float32(0.0))
-
-
 def _coarse_profiles(elev: np.ndarray, rows: np.ndarray, f: int, scale: float,
                      missing: int) -> np.ndarray:
     """float32 (N, n / f) [deg]: groups of ``f`` bins averaged for the positions ``rows`` of a
@@ -181,64 +173,8 @@ def _coarse_profiles(elev: np.ndarray, rows: np.ndarray, f: int, scale: float,
             pc += raw_t[k::f]
         pc *= np.float32(scale / f)
         return np.ascontiguousarray(pc.T)  # no copy unless the chunk was stored transposed
-    p = _to_float(np.ascontiguousarray(raw_t.T), scale, missing)
+    p = to_float(np.ascontiguousarray(raw_t.T), scale, missing)
     return p.reshape(p.shape[0], -1, f).mean(axis=2)
-
-
-def _prefetch(blocks, depth: int = 2):
-    """Yield ``blocks`` while a thread reads ahead: decompression (zstd, GIL released) overlaps
-    the scoring. Also yields the reader thread's CPU time [s] for each block.
-
-    One reader: two (a pool decoding two blocks at once, the scoring thread's BLAS at one
-    thread) were slower on two cores, 7 x 7 km database at 5 m, four runs each alternated (load
-    1.2-1.8): search 2.41-2.66 -> 2.53-2.92 s wall, CPU 4.02-4.34 -> 4.08-4.66 s: the reading
-    waited less (0.60 -> 0.38 s) and the coarse pass, sharing its core, took longer. Nor was
-    the scoring thread decoding the next block itself while the one it wanted was still being
-    decoded (work stealing, blocks still in order; 2026-11-27, four runs each alternated, load
-    0.3-1.4): search 2.03-2.13 s wall against 1.96-2.14 s."""
-    import queue
-    import threading
-    import time
-
-    box: queue.Queue = queue.Queue(depth)
-    stop = threading.Event()
-
-    def put(item):
-        while not stop.is_set():
-            try:
-                box.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                pass
-        return False
-
-    def run():
-        try:
-            it = iter(blocks)
-            while True:
-                t = time.thread_time()
-                try:
-                    b = next(it)
-                except StopIteration:
-                    break
-                if not put(("block", b, time.thread_time() - t)):
-                    return
-            put(("end", None, 0.0))
-        except BaseException as e:  # handed to the consumer, raised there
-            put(("error", e, 0.0))
-
-    th = threading.Thread(target=run, name="skyfix-block-reader", daemon=True)
-    th.start()
-    try:
-        while True:
-            kind, v, dt = box.get()
-            if kind == "end":
-                return
-            if kind == "error":
-                raise v
-            yield v, dt
-    finally:
-        stop.set()
 
 
 def _elevation_blocks(db):
@@ -291,39 +227,20 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
     coarse_q = dense_query(prepare_query(decimate_query(q, f), config.remove_tilt,
                                          max(4, config.min_observed // f))) if f > 1 else None
     ny, nx = (int(v) for v in db.shape)
-    found: list = []  # (rows, cols, exact scores, headings) of each exact batch
     scale = float(getattr(db, "scale_deg", 1.0))
     missing = int(getattr(db, "missing", MISSING_RAW))
-    t_read = t_reader = t_coarse = t_exact = 0.0
-    n_pos = n_exact = 0
-    pend: list = []
-    pend_n = 0
-
-    def flush():
-        nonlocal pend, pend_n
-        if not pend:
-            return 0
-        raw_ = np.concatenate([a for a, _, _ in pend])
-        r_ = np.concatenate([b for _, b, _ in pend])
-        c_ = np.concatenate([c for _, _, c in pend])
-        pend, pend_n = [], 0
-        es, sh = score_profiles(_to_float(raw_, scale, missing), query)
-        found.append((r_, c_, es.astype(np.float32), (sh * (360.0 / n)).astype(np.float32)))
-        return raw_.shape[0]
-
-    def push(raw_, r_, c_):
-        """Queue positions for the exact pass; score the queue once it holds a batch."""
-        nonlocal pend_n, n_exact, t_exact
-        pend.append((raw_, r_, c_))
-        pend_n += raw_.shape[0]
-        if pend_n >= min(config.slice_rows, EXACT_BATCH):
-            tb = time.perf_counter()
-            n_exact += flush()
-            t_exact += time.perf_counter() - tb
+    exact = ExactPass(query, scale, missing, n, min(config.slice_rows, EXACT_BATCH))
+    if (config.coarse_index and coarse_q is not None and stride == COARSE_STRIDE
+            and f == COARSE_FACTOR and getattr(db, "has_coarse_index", False)):
+        n_pos, timing = indexed_search(db, coarse_q, exact, config, prior_xy, prior_radius_m)
+        return _result(db, exact, n_pos, timing, config)
+    t_read = t_reader = t_coarse = 0.0
+    n_pos = 0
+    push = exact.push
 
     blocks = _elevation_blocks(db)
-    blocks = _prefetch(blocks) if config.prefetch else ((b, 0.0) for b in blocks)
-    with _blas_threads(max(1, config.workers - 1) if config.prefetch else config.workers):
+    blocks = prefetch(blocks) if config.prefetch else ((b, 0.0) for b in blocks)
+    with blas_threads(max(1, config.workers - 1) if config.prefetch else config.workers):
         t0 = time.perf_counter()
         cpu0 = time.thread_time()
         for blk, dt in blocks:
@@ -367,21 +284,27 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
                 else:
                     push(elev[s0:s0 + idx.size] if sel is None else elev[idx], rr[idx], cc[idx])
             t0 = time.perf_counter()
-        tb = time.perf_counter()
-        t_read += tb - t0
-        n_exact += flush()
-        t_exact += time.perf_counter() - tb
+        t_read += time.perf_counter() - t0
+        exact.flush()
         cpu_main = time.thread_time() - cpu0  # BLAS/FFT helper threads not included
+    timing = {"read_s": t_read, "reader_cpu_s": t_reader, "main_cpu_s": cpu_main,
+              "coarse_s": t_coarse}
+    return _result(db, exact, n_pos, timing, config)
+
+
+def _result(db, exact: "ExactPass", n_pos: int, timing: dict, config: MatchConfig) -> MatchResult:
+    """The candidates in distinct basins from the exactly scored positions."""
+    import time
+
     if n_pos == 0:
         raise DatabaseError("no database position lies inside the prior area: check --prior-x/"
                             "--prior-y/--prior-radius-m against the database extent")
     tn = time.perf_counter()
-    rows, cols, scores, heads = (np.concatenate(a) for a in zip(*found)) if found else \
-        (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
+    rows, cols, scores, heads = exact.results()
     cands = _nms(rows, cols, scores, heads, db, config.top_k, config.nms_radius_m)
-    timing = {"read_s": t_read, "reader_cpu_s": t_reader, "main_cpu_s": cpu_main,
-              "coarse_s": t_coarse, "exact_s": t_exact, "nms_s": time.perf_counter() - tn}
-    return MatchResult(cands, rows, cols, scores, heads, (ny, nx), n_pos, n_exact, timing)
+    timing = {**timing, "exact_s": exact.seconds, "nms_s": time.perf_counter() - tn}
+    ny, nx = (int(v) for v in db.shape)
+    return MatchResult(cands, rows, cols, scores, heads, (ny, nx), n_pos, exact.n_scored, timing)
 
 
 def _subgrid_survivors(elev, rr, cc, sel, stride, coarse_q, f, scale, missing, config):
@@ -434,18 +357,6 @@ def _subgrid_survivors(elev, rr, cc, sel, stride, coarse_q, f, scale, missing, c
     if sel is not None:
         take &= inside
     return np.flatnonzero(take), n_here
-
-
-@contextmanager
-def _blas_threads(n: int):
-    """Limit BLAS threads (the reader thread takes a core; oversubscription costs more than it gives)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # optional: without it BLAS uses its default
-        yield
-        return
-    with threadpool_limits(limits=n, user_api="blas"):
-        yield
 
 
 def _nms(rows, cols, scores, headings, db, k: int, radius_m: float) -> list:
