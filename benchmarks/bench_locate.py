@@ -17,10 +17,12 @@ machine are noisy; CPU seconds are steadier than wall seconds there.
 
     PYTHONPATH=src python benchmarks/bench_locate.py [--db DB] [--repeat 3] [--preset fast]
         [--heading 123] [--noise 0.2] [--coverage 360] [--pitch 0 --roll 0] [--profile P.json]
-        [--load [N]]
+        [--load [N]] [--ab-index]
 
 With ``--load``, the locate runs are repeated while N processes (one per core by default) spin,
 started and stopped by the benchmark itself: the search must stay within 2x of its idle time.
+With ``--ab-index`` every run is repeated on a twin of the store without its coarse index
+(hard-linked, removed afterwards), the two alternated, and the ratios printed.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import argparse
 import json
 import os
 import re
+import shutil
 import statistics
 import subprocess
 import sys
@@ -116,6 +119,10 @@ def main():
                     help="then rerun the locate runs with this many busy-looping processes started "
                          "and stopped by the benchmark (default with the flag: one per core), and "
                          "print the loaded / idle wall-time ratio")
+    ap.add_argument("--ab-index", action="store_true",
+                    help="also run every measurement on a twin of the store without its coarse "
+                         "index (hard links, removed afterwards), alternated run by run, and print "
+                         "the ratios")
     args = ap.parse_args()
 
     from skyfix.database import open_database
@@ -130,34 +137,83 @@ def main():
     tr, tc = (int(v) for v in db.index_of(tx, ty)) if tx is not None else (None, None)
     print(f"store {args.db}: {nx} x {ny} = {nx * ny:,} positions x {db.azimuth_bins} bins, "
           f"{db.n_blocks} blocks; preset {args.preset}")
-    with tempfile.TemporaryDirectory() as d:
-        prof = Path(args.profile) if args.profile else Path(d) / "query.json"
-        if not args.profile:
-            make_profile(args.db, prof, tx, ty, args)
-            print(f"query rendered at ({tx:.1f}, {ty:.1f}) [nearest grid row {tr}, col {tc}], "
-                  f"heading {args.heading}, pitch {args.pitch}, roll {args.roll}, noise "
-                  f"{args.noise} deg, view {args.coverage} deg")
-        loc, mat, loads = [], [], []
-        for _ in range(args.repeat):
-            loads.append(os.getloadavg()[0])
-            loc.append(run_locate(args.db, prof, args.preset, Path(d) / "fix.json"))
-            mat.append(run_match(args.db, prof, args.preset))
-        loaded = []
-        if args.load:
-            busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
-                    for _ in range(args.load)]
-            try:
-                time.sleep(3.0)  # let the scheduler see them
-                for _ in range(args.repeat):
-                    loaded.append(run_locate(args.db, prof, args.preset, Path(d) / "fix.json"))
-                load_during = os.getloadavg()[0]
-            finally:
-                for b in busy:
-                    b.kill()
-                    b.wait()
-    med = statistics.median
+    stores = {"with index": args.db}
+    twin = None
+    if args.ab_index:
+        if not db.has_coarse_index:
+            raise SystemExit(f"{args.db} has no coarse index to compare against: run its build-db "
+                             "command again to add it")
+        twin = Path(args.db).parent / f".{Path(args.db).name}.noindex-{os.getpid()}"
+        hardlink_without_index(Path(args.db), twin)
+        stores["without"] = str(twin)
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            prof = Path(args.profile) if args.profile else Path(d) / "query.json"
+            if not args.profile:
+                make_profile(args.db, prof, tx, ty, args)
+                print(f"query rendered at ({tx:.1f}, {ty:.1f}) [nearest grid row {tr}, col {tc}], "
+                      f"heading {args.heading}, pitch {args.pitch}, roll {args.roll}, noise "
+                      f"{args.noise} deg, view {args.coverage} deg")
+            runs = {k: {"loc": [], "mat": [], "loaded": []} for k in stores}
+            loads = []
+            for _ in range(args.repeat):  # the stores alternated, run by run
+                loads.append(os.getloadavg()[0])
+                for k, path in stores.items():
+                    runs[k]["loc"].append(run_locate(path, prof, args.preset, Path(d) / "fix.json"))
+                for k, path in stores.items():
+                    runs[k]["mat"].append(run_match(path, prof, args.preset))
+            load_during = None
+            if args.load:
+                busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+                        for _ in range(args.load)]
+                try:
+                    time.sleep(3.0)  # let the scheduler see them
+                    for _ in range(args.repeat):
+                        for k, path in stores.items():
+                            runs[k]["loaded"].append(run_locate(path, prof, args.preset,
+                                                                Path(d) / "fix.json"))
+                    load_during = os.getloadavg()[0]
+                finally:
+                    for b in busy:
+                        b.kill()
+                        b.wait()
+    finally:
+        if twin is not None:
+            shutil.rmtree(twin, ignore_errors=True)
     print(f"load average (1 min) during the runs: {', '.join(f'{v:.1f}' for v in loads)} on "
           f"{os.cpu_count()} cores")
+    for k, r in runs.items():
+        if len(runs) > 1:
+            print(f"--- the store {k} its coarse index")
+        report(db, r, args, tx, ty, tr, tc, load_during)
+    if len(runs) > 1:
+        med = statistics.median
+        a, b = runs["with index"], runs["without"]
+        def ratio(f, key):
+            return med(f(v) for v in a[key]) / med(f(v) for v in b[key])
+
+        print(f"with / without the index: locate wall {ratio(lambda v: v[0], 'loc'):.2f}, CPU "
+              f"{ratio(lambda v: v[2], 'loc'):.2f}; matcher wall "
+              f"{ratio(lambda m: m['search_s'], 'mat'):.2f}, CPU "
+              f"{ratio(lambda m: m['search_cpu_s'], 'mat'):.2f}"
+              + (f"; loaded locate wall {ratio(lambda v: v[0], 'loaded'):.2f}" if a["loaded"] else ""))
+
+
+def hardlink_without_index(src: Path, dst: Path) -> None:
+    """A twin of the store at ``dst`` without its coarse index: every file hard-linked (no copy,
+    no extra disk), the ``coarse`` folder left out."""
+    for root, dirs, files in os.walk(src):
+        rel = Path(root).relative_to(src)
+        if rel.parts[:1] == ("coarse",):
+            continue
+        (dst / rel).mkdir(parents=True, exist_ok=True)
+        for f in files:
+            os.link(Path(root) / f, dst / rel / f)
+
+
+def report(db, r, args, tx, ty, tr, tc, load_during) -> None:
+    med = statistics.median
+    loc, mat, loaded = r["loc"], r["mat"], r["loaded"]
     walls = [w for w, _, _, _ in loc]
     print(f"skyfix locate (whole process, {args.repeat} runs): wall median {med(walls):.2f} s "
           f"(runs {', '.join(f'{w:.2f}' for w in walls)}), CPU median "
@@ -176,18 +232,18 @@ def main():
               f"{err:.1f} m from the truth; nearest grid position to the truth: {(fr, fc) == (tr, tc)}")
     t = {k: med(m["timing"][k] for m in mat) for k in mat[0]["timing"]}
     print(f"matcher alone (medians of {args.repeat}): search wall {med(m['search_s'] for m in mat):.2f} s, "
-          f"CPU {med(m['search_cpu_s'] for m in mat):.2f} s; process {med(m['process_s'] for m in mat):.2f} s, "
-          f"peak RSS {max(m['peak_rss_mb'] for m in mat):.0f} MB")
+          f"CPU {med(m['search_cpu_s'] for m in mat):.2f} s; process "
+          f"{med(m['process_s'] for m in mat):.2f} s, peak RSS {max(m['peak_rss_mb'] for m in mat):.0f} MB")
     print(f"  waiting for blocks (read/decompress not overlapped) {t['read_s']:.2f} s "
           f"[reader thread CPU {t['reader_cpu_s']:.2f} s], coarse pass {t['coarse_s']:.2f} s, "
           f"exact pass {t['exact_s']:.2f} s on {mat[0]['scored_exact']:,} of "
           f"{mat[0]['positions']:,} positions, nms {t['nms_s']:.2f} s; scoring thread CPU "
-          f"{t['main_cpu_s']:.2f} s")
+          f"{t['main_cpu_s']:.2f} s; blocks decoded {t.get('blocks_read', db.n_blocks):.0f} of "
+          f"{db.n_blocks}")
     m = mat[-1]
     if tr is not None:
         print(f"  top candidate is the truth's grid position: {(m['row'], m['col']) == (tr, tc)} "
               f"(row {m['row']}, col {m['col']}; heading {m['heading_deg']:.2f}, truth {args.heading})")
-
 
 if __name__ == "__main__":
     main()
