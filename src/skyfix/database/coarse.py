@@ -5,7 +5,7 @@ Why it exists: a full search scores every second position on skylines averaged o
 then only the best few per cent exactly. Read from the full skylines, that coarse pass decodes every
 byte of the store (1.4 GB for the 7 x 7 km database at 5 m, ~2 s of CPU, the search's critical
 path). From this index it decodes a sixteenth of that, and the exact pass then decodes only the
-blocks that hold a survivor (10-20 % of them for a full turn; ``match/search.py``).
+blocks that hold a survivor (20-30 % of them for a full turn; ``match/indexed.py``).
 
 The index is derived data: each chunk is a function of its block's elevation chunk alone
 (:func:`~.layout.coarse_of`), so it needs no checksum of its own (``skyfix verify`` recomputes it),

@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from ..database.layout import COARSE_STRIDE
-from .passes import EXACT_BATCH, ExactPass, blas_threads, prefetch
+from .passes import EXACT_BATCH, ExactPass, read_blocks, scoring_threads
 from .scores import score_dense
 
 
@@ -23,7 +23,8 @@ def indexed_search(db, coarse_q, exact: ExactPass, config, prior_xy, prior_radiu
        rather than per slice, are scored exactly: only the blocks holding one are decoded.
 
     For a full turn the survivors gather in the few basins that look like the query: on the 7 x 7
-    km Sierra store at 5 m they lie in 10-20 % of the blocks (``benchmarks/bench_locate.py``).
+    km Sierra store at 5 m they lie in 20-30 % of the blocks (96-141 of 484, median 129 over 60
+    queries: ``benchmarks/bench_search_recall.py``).
     Queues the exact positions on ``exact``; returns (positions searched, timing).
     """
     grid = db.grid
@@ -46,8 +47,8 @@ def indexed_search(db, coarse_q, exact: ExactPass, config, prior_xy, prior_radiu
         x, y = db.xy_of(rows, cols)
         return (x - prior_xy[0]) ** 2 + (y - prior_xy[1]) ** 2 <= radius ** 2
 
-    chunks = prefetch(coarse_chunks()) if config.prefetch else ((c, 0.0) for c in coarse_chunks())
-    with blas_threads(max(1, config.workers - 1) if config.prefetch else config.workers):
+    chunks = read_blocks(coarse_chunks(), config)
+    with scoring_threads(config):
         cpu0 = time.thread_time()
         t0 = time.perf_counter()
         for (br, bc, raw), dt in chunks:
@@ -111,7 +112,7 @@ def indexed_search(db, coarse_q, exact: ExactPass, config, prior_xy, prior_radiu
         # One reader, as in the full pass: two (this pass scores little, so the scoring thread
         # mostly waits) gained 3 % (search 1.44 -> 1.39 s wall, eight runs each alternated, load
         # 1.2, 2026-11-27) for 6 MB more peak RSS: not taken.
-        blocks = prefetch(blocks_read()) if config.prefetch else ((v, 0.0) for v in blocks_read())
+        blocks = read_blocks(blocks_read(), config)
         t0 = time.perf_counter()
         for (a, e, br, bc, raw), dt in blocks:
             t_read += time.perf_counter() - t0

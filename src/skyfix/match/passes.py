@@ -134,3 +134,15 @@ def blas_threads(n: int):
         return
     with threadpool_limits(limits=n, user_api="blas"):
         yield
+
+
+def read_blocks(blocks, config):
+    """``(block, reader CPU seconds)`` for each of ``blocks`` in order: read ahead in a thread
+    (:func:`prefetch`) when ``config.prefetch``, else one after the other (0 s each)."""
+    return prefetch(blocks) if config.prefetch else ((b, 0.0) for b in blocks)
+
+
+def scoring_threads(config):
+    """:func:`blas_threads` for the scoring thread: ``config.workers``, less the core the block
+    reader takes when ``config.prefetch``."""
+    return blas_threads(max(1, config.workers - 1) if config.prefetch else config.workers)

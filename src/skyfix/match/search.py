@@ -38,7 +38,7 @@ from ..database.layout import COARSE_FACTOR, COARSE_STRIDE
 from ..errors import DatabaseError, ParameterError
 from .memory import MISSING_RAW, grid_index
 from .indexed import indexed_search
-from .passes import EXACT_BATCH, ExactPass, blas_threads, prefetch, to_float
+from .passes import EXACT_BATCH, ExactPass, read_blocks, scoring_threads, to_float
 from .scores import decimate_query, dense_query, prepare_query, score_dense
 
 
@@ -226,7 +226,6 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
     query = prepare_query(q, config.remove_tilt, config.min_observed)
     coarse_q = dense_query(prepare_query(decimate_query(q, f), config.remove_tilt,
                                          max(4, config.min_observed // f))) if f > 1 else None
-    ny, nx = (int(v) for v in db.shape)
     scale = float(getattr(db, "scale_deg", 1.0))
     missing = int(getattr(db, "missing", MISSING_RAW))
     exact = ExactPass(query, scale, missing, n, min(config.slice_rows, EXACT_BATCH))
@@ -238,9 +237,8 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
     n_pos = 0
     push = exact.push
 
-    blocks = _elevation_blocks(db)
-    blocks = prefetch(blocks) if config.prefetch else ((b, 0.0) for b in blocks)
-    with blas_threads(max(1, config.workers - 1) if config.prefetch else config.workers):
+    blocks = read_blocks(_elevation_blocks(db), config)
+    with scoring_threads(config):
         t0 = time.perf_counter()
         cpu0 = time.thread_time()
         for blk, dt in blocks:
