@@ -148,7 +148,8 @@ def packed_pyramid(dem: Dem):
 
 
 @njit(cache=True, fastmath=False, nogil=True)
-def _bilinear(z, u, v):
+def bilinear(z, u, v):
+    """Bilinear height [m] of grid ``z`` at fractional column ``u`` and row ``v`` (index space)."""
     ny, nx = z.shape
     j = min(int(math.floor(u)), nx - 2)
     i = min(int(math.floor(v)), ny - 2)
@@ -195,7 +196,7 @@ def pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end):
 
 
 @njit(cache=True, nogil=True)
-def _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, tol, t_min, t_seed):
+def trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, tol, t_min, t_seed):
     """Max tangent of the elevation angle along one ray (index space; t in metres).
 
     u = u0 + du t is the fractional column, v = v0 + dv t the fractional row.
@@ -208,7 +209,7 @@ def _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, t
     best = -np.inf
     t_best = 0.0
     if t_min < t_seed < t_end:
-        hs = _bilinear(z, u0 + du * t_seed, v0 + dv * t_seed)
+        hs = bilinear(z, u0 + du * t_seed, v0 + dv * t_seed)
         if math.isfinite(hs):
             best = (hs - zc) / t_seed - curv * t_seed
             t_best = t_seed
@@ -278,7 +279,7 @@ def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz,
     for k in prange(n):
         u0 = (xs[k] - x0) / dx
         v0 = (y0 - ys[k]) / dy
-        zg = _bilinear(z, u0, v0)
+        zg = bilinear(z, u0, v0)
         out_ground[k] = zg
         # an absolute camera height where given (a DEM stack: the ground is the finest DEM's)
         zc = cam_z[k] if math.isfinite(cam_z[k]) else zg + h
@@ -308,7 +309,7 @@ def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz,
                 out_el[k, b] = np.nan
                 out_dist[k, b] = np.nan
                 continue
-            best, t_seed = _trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end,
+            best, t_seed = trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end,
                                       curv, tol, t_min, t_seed)
             out_el[k, b] = math.degrees(math.atan(best)) if best > -np.inf else np.nan
             out_dist[k, b] = t_seed if best > -np.inf else np.nan

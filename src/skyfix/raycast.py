@@ -14,7 +14,7 @@ the same surface, up to floating point.
 
 Inside one bilinear DEM cell ``z(t)`` is quadratic in ``t`` along the ray, so ``t f(t) - t tan(el)``
 is a quadratic and the first hit in a cell is found in closed form. Empty space is skipped with
-the DEM's max pyramid exactly as :func:`skyfix.horizon._trace_ray` does (a block whose maximum
+the DEM's max pyramid exactly as :func:`skyfix.horizon.trace_ray` does (a block whose maximum
 height cannot reach the ray is stepped over, coarse far away, fine near the camera).
 
 Rays start at ``T_MIN_M`` (as the horizon renderer) and end at the DEM's pixel-centre hull or

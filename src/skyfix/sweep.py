@@ -1,0 +1,435 @@
+"""Skylines of a whole grid of positions at once: a horizon sweep that finds, exact rays that decide.
+
+:func:`skyfix.horizon.render_horizons` traces every ray of every position on its own (about 130
+pyramid steps a ray on the Sierra DEM, 67 of them exact cell maxima near the skyline), so a
+7 x 7 km database at 5 m costs 700 M such rays. Neighbouring positions look at almost the same
+terrain; this renderer shares that work the way a horizon sweep does (Stewart 1998), and keeps the
+answer the per-point kernel's:
+
+1. **Lines** (shared). For each azimuth, lines of that azimuth every ``line_spacing_m`` across the
+   grid. Along each line the terrain is sampled where the line crosses the DEM's grid lines (the
+   bilinear surface's kinks), from the DEM edge back to the grid, and kept as an upper convex hull.
+   Curvature and refraction enter exactly: with ``w(s) = z(s) - c s**2`` for terrain and camera
+   alike, the tangent of the elevation angle from along-position ``a`` is the slope from
+   ``(a, w_cam)`` to ``(s, w(s))`` plus ``2 c a`` (``c`` = :attr:`Planet.curvature_coeff`), and a
+   shear keeps a hull a hull. The hull holds only terrain at least ``near_m`` ahead of the query
+   (samples enter as the query point walks back), and a binary search gives the hull vertex a
+   camera sees highest: on each of the two lines that bracket a position, *where* its skyline
+   most likely lies.
+2. **Own ray** (per position, exact). The position's own ray is maximised exactly, cell by cell
+   in closed form as the per-point kernel's level 0 does, over its near field (``t <= near_m``,
+   where lines a few metres apart see different terrain), on out to ``rising_m`` where the ray is
+   still climbing at ``near_m`` (a slope whose crest lies just beyond), and over ``+-window_m``
+   around the two lines' skyline points. Every value is thus a true point of the position's own
+   ray: the renderer never overstates the skyline (beyond the kernel's own skip tolerance), and
+   understates it only where the position's skyline lies on terrain that neither bracketing line
+   ranks highest (a knob between the lines, 100 m - 1 km away, that both pass beside).
+
+Measured against the per-point kernel (``benchmarks/bench_sweep.py``): see the README's row.
+``max_distance_m`` is not supported (a hull cannot forget terrain behind the limit); callers use
+the per-point kernel then.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .dem import Dem
+from .errors import ParameterError
+from .horizon import (T_MIN_M, HorizonBatch, azimuth_centres, bilinear, packed_pyramid,
+                      trace_ray)
+from .jit import njit, prange
+from .planets import resolve_planet
+
+#: [m] every position's own ray is traced exactly out to this distance
+NEAR_M = 100.0
+#: [m] how far a ray still rising at ``NEAR_M`` is traced exactly
+RISING_M = 400.0
+#: [m] least half-width of the exact window around each bracketing line's skyline point (it is
+#: one DEM cell where cells are larger: a line's crest sample and the tangent's maximum can lie
+#: most of a cell apart on a broad crest)
+WINDOW_M = 15.0
+
+
+def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows: int, cols: int,
+                *, camera_height_m: float = 1.5, planet=None, azimuth_bins: int = 360,
+                skip_tol_deg: float = 0.001, near_m: float = NEAR_M,
+                line_spacing_m: float | None = None, window_m: float | None = None,
+                rising_m: float = RISING_M) -> HorizonBatch:
+    """Skylines of a regular grid of positions (row-major, north to south, west to east).
+
+    x_west, y_north : [m] the first position (row 0, column 0) in the DEM's CRS
+    spacing_m : [m] grid spacing; rows, cols : grid shape
+    camera_height_m : [m] camera centre above the DEM surface; planet : as in
+        :func:`~skyfix.horizon.render_horizons`; azimuth_bins : bins over 360 deg
+    skip_tol_deg : [deg] block-skip tolerance of the pyramid trace past ``near_m`` (as the
+        per-point kernel's)
+    near_m : [m] every position's own ray is exact out to this distance
+    line_spacing_m : [m] distance between the sweep lines (default: half ``spacing_m``)
+    window_m : [m] half-width of the exact trace around each line's skyline point (default: one
+        DEM cell, at least :data:`WINDOW_M`)
+    rising_m : [m] a ray whose near-field maximum is at ``near_m`` (still rising) is traced
+        exactly out to this distance
+
+    Rays run to the DEM edge (no maximum distance). Returns a :class:`HorizonBatch` as
+    :func:`~skyfix.horizon.render_horizons` does, with ``skyline_distance_m``.
+    """
+    if not (spacing_m > 0 and math.isfinite(spacing_m)):
+        raise ParameterError(f"grid spacing must be > 0 m, got {spacing_m}")
+    if int(rows) != rows or int(cols) != cols or rows < 1 or cols < 1:
+        raise ParameterError(f"grid shape must be positive whole numbers, got {rows} x {cols}")
+    if not np.isfinite(camera_height_m) or camera_height_m < 0:
+        raise ParameterError(f"camera height must be >= 0 m, got {camera_height_m}")
+    if int(azimuth_bins) != azimuth_bins or azimuth_bins <= 0:
+        raise ParameterError(f"azimuth bins must be a positive whole number, got {azimuth_bins}")
+    ls = 0.5 * spacing_m if line_spacing_m is None else float(line_spacing_m)
+    win = max(WINDOW_M, dem.dx, dem.dy) if window_m is None else float(window_m)
+    for name, v in (("line spacing", ls), ("near field", near_m), ("window", win),
+                    ("rising distance", rising_m)):
+        if not (v > 0 and math.isfinite(v)):
+            raise ParameterError(f"{name} must be > 0 m, got {v}")
+    rows, cols = int(rows), int(cols)
+    xs = x_west + np.arange(cols) * float(spacing_m)
+    ys = y_north - np.arange(rows) * float(spacing_m)
+    gx, gy = np.meshgrid(xs, ys)
+    x, y = gx.ravel(), gy.ravel()
+    dem.require_inside(x, y)
+    planet = resolve_planet(planet, getattr(dem, "body", None))
+    bins = int(azimuth_bins)
+    data, offs, prows, pcols = packed_pyramid(dem)
+    az = np.radians(azimuth_centres(bins))
+    # bin-major while rendering (one bin's positions together), position-major as returned
+    elev = np.empty((bins, x.size), np.float32)
+    length = np.empty((bins, x.size), np.float32)
+    dist = np.empty((bins, x.size), np.float32)
+    ground = np.empty(x.size, np.float64)
+    _sweep_grid(dem.z, data, offs, prows, pcols, dem.x0, dem.y0, dem.dx, dem.dy, x, y,
+                float(camera_height_m), np.sin(az), np.cos(az), planet.curvature_coeff,
+                math.tan(math.radians(skip_tol_deg)), T_MIN_M, float(near_m), float(rising_m), ls,
+                win, elev, length, ground, dist)
+    return HorizonBatch(x, y, np.ascontiguousarray(elev.T), np.ascontiguousarray(length.T), ground,
+                        float(camera_height_m), float(np.inf), planet, np.ascontiguousarray(dist.T))
+
+
+@njit(cache=True, nogil=True)
+def _line_span(uc, vc, us, vs, nx, ny):
+    """The along-line interval [s_in, s_out] [m] inside the DEM's pixel-centre hull for the line
+    u = uc + us s, v = vc + vs s (index space); s_in > s_out when the line misses the DEM."""
+    lo = -np.inf
+    hi = np.inf
+    for c, d, top in ((uc, us, nx - 1.0), (vc, vs, ny - 1.0)):
+        if d == 0.0:
+            if c < 0.0 or c > top:
+                return 1.0, 0.0
+        else:
+            s0 = (0.0 - c) / d
+            s1 = (top - c) / d
+            lo = max(lo, min(s0, s1))
+            hi = min(hi, max(s0, s1))
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
+def _line_samples(z, uc, vc, us, vs, s_a, s_b, curv, out_s, out_w):
+    """Terrain along a line in [s_a, s_b], ascending: out_s [m] and ``w = z - curv s**2`` [m], at
+    both ends, at every grid-line crossing (the bilinear surface's kinks) and at the top of every
+    crossing-to-crossing piece that bulges upward (inside a cell the surface along a line is the
+    parabola ``h + b s + e us vs s**2``: a ridge crossing a cell diagonally crests between the
+    crossings, metres above both). Samples over nodata are left out. Returns the count."""
+    ny, nx = z.shape
+    cap = out_s.shape[0]
+    ku = math.inf
+    kv = math.inf
+    step_u = math.inf
+    step_v = math.inf
+    if us != 0.0:
+        step_u = abs(1.0 / us)
+        u_a = uc + us * s_a
+        k = math.floor(u_a) + 1.0 if us > 0 else math.ceil(u_a) - 1.0
+        ku = (k - uc) / us
+    if vs != 0.0:
+        step_v = abs(1.0 / vs)
+        v_a = vc + vs * s_a
+        k = math.floor(v_a) + 1.0 if vs > 0 else math.ceil(v_a) - 1.0
+        kv = (k - vc) / vs
+    s = s_a
+    h0 = bilinear(z, uc + us * s, vc + vs * s)
+    n = 0
+    if math.isfinite(h0):
+        out_s[0] = s
+        out_w[0] = h0 - curv * s * s
+        n = 1
+    uv = us * vs
+    while s < s_b and n < cap - 2:
+        nxt = min(ku, kv, s_b)
+        if ku <= nxt:
+            ku += step_u
+        if kv <= nxt:
+            kv += step_v
+        h1 = bilinear(z, uc + us * nxt, vc + vs * nxt)
+        if uv != 0.0 and math.isfinite(h0) and math.isfinite(h1):
+            mid = 0.5 * (s + nxt)
+            j = min(max(int(math.floor(uc + us * mid)), 0), nx - 2)
+            i = min(max(int(math.floor(vc + vs * mid)), 0), ny - 2)
+            q = (z[i, j] - z[i, j + 1] - z[i + 1, j] + z[i + 1, j + 1]) * uv
+            if q < 0.0:  # concave: its vertex, if inside the piece
+                d = nxt - s
+                b = (h1 - h0) / d - q * d
+                x = -b / (2.0 * q)
+                if 0.0 < x < d:
+                    sv = s + x
+                    out_s[n] = sv
+                    out_w[n] = h0 + b * x + q * x * x - curv * sv * sv
+                    n += 1
+        if math.isfinite(h1):
+            out_s[n] = nxt
+            out_w[n] = h1 - curv * nxt * nxt
+            n += 1
+        s = nxt
+        h0 = h1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _tangent_vertex(hs, hw, top, qs, qw):
+    """Index of the upper-hull vertex with the steepest slope from (qs, qw), which lies left of
+    every vertex. The hull is hs/hw[0..top], its leftmost vertex at ``top``: slopes from the query
+    rise then fall along it, so a binary search finds the peak."""
+    lo = 0  # count from the left: vertex j is hs[top - j]
+    hi = top
+    while lo < hi:
+        mid = (lo + hi) // 2
+        i = top - mid
+        # rising where the next edge is steeper than the sight line to this vertex
+        if (hw[i - 1] - hw[i]) * (hs[i] - qs) > (hw[i] - qw) * (hs[i - 1] - hs[i]):
+            lo = mid + 1
+        else:
+            hi = mid
+    return top - lo
+
+
+@njit(cache=True, nogil=True)
+def _exact_span(z, u0, v0, us, vs, zc, curv, lo, hi):
+    """The ray's exact maximum tangent over [lo, hi] [m] and where it is: every cell the span
+    crosses, its bilinear piece ``A/t + B + C t`` maximised in closed form as in the per-point
+    kernel's level 0, without the pyramid (a span of a few cells gains nothing from skipping).
+    (-inf, 0) over nodata only."""
+    ny, nx = z.shape
+    best = -np.inf
+    tb = 0.0
+    t = lo
+    while t < hi:
+        # the cell the ray is entering at t (nudged along the ray, as pyramid_block does)
+        u = u0 + us * t + (1e-9 if us > 0.0 else (-1e-9 if us < 0.0 else 0.0))
+        v = v0 + vs * t + (1e-9 if vs > 0.0 else (-1e-9 if vs < 0.0 else 0.0))
+        j = min(max(int(math.floor(u)), 0), nx - 2)
+        i = min(max(int(math.floor(v)), 0), ny - 2)
+        te = hi
+        if us > 0.0:
+            te = min(te, (j + 1 - u0) / us)
+        elif us < 0.0:
+            te = min(te, (j - u0) / us)
+        if vs > 0.0:
+            te = min(te, (i + 1 - v0) / vs)
+        elif vs < 0.0:
+            te = min(te, (i - v0) / vs)
+        if te <= t:
+            te = t + 1e-6
+        z00 = z[i, j]
+        z01 = z[i, j + 1]
+        z10 = z[i + 1, j]
+        z11 = z[i + 1, j + 1]
+        if math.isfinite(z00) and math.isfinite(z01) and math.isfinite(z10) and math.isfinite(z11):
+            au = u0 - j
+            av = v0 - i
+            e = z00 - z01 - z10 + z11
+            p = z00 + (z01 - z00) * au + (z10 - z00) * av + e * au * av
+            b = (z01 - z00) * us + (z10 - z00) * vs + e * (au * vs + av * us)
+            aa = p - zc
+            cc = e * us * vs - curv
+            f = aa / t + b + cc * t
+            tf = t
+            f1 = aa / te + b + cc * te
+            if f1 > f:
+                f = f1
+                tf = te
+            if aa < 0.0 and cc < 0.0:
+                ts = math.sqrt(aa / cc)
+                if t < ts < te:
+                    fs = aa / ts + b + cc * ts
+                    if fs > f:
+                        f = fs
+                        tf = ts
+            if f > best:
+                best = f
+                tb = tf
+        t = te
+    return best, tb
+
+
+@njit(cache=True, nogil=True)
+def _window(z, u0, v0, us, vs, zc, curv, lo, hi, near, t_end):
+    """The exact maximum (tangent, distance [m]) of the ray over [lo, hi] clipped to
+    [near, t_end]; (-inf, 0) when that is empty."""
+    lo = max(lo, near)
+    hi = min(hi, t_end)
+    if hi <= lo:
+        return -np.inf, 0.0
+    return _exact_span(z, u0, v0, us, vs, zc, curv, lo, hi)
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, caz, curv, tol,
+                t_min, near, rising, ls, win, out_el, out_len, out_ground, out_dist):
+    ny, nx = z.shape
+    n = xs.shape[0]
+    nb = saz.shape[0]
+    xm = 0.5 * (xs.min() + xs.max())
+    ym = 0.5 * (ys.min() + ys.max())
+    zc = np.empty(n)
+    for k in range(n):
+        g = bilinear(z, (xs[k] - x0) / dx, (y0 - ys[k]) / dy)
+        out_ground[k] = g
+        zc[k] = g + h
+    cap = 8 * (nx + ny) + 16  # crossings and crests of the longest line
+    for b in prange(nb):
+        sa = saz[b]
+        ca = caz[b]
+        if abs(sa) < 1e-12:
+            sa = 0.0
+        if abs(ca) < 1e-12:
+            ca = 0.0
+        # along (a) the ray, across (o) it: d = (sa, ca), n = (ca, -sa) in (east, north)
+        a = (xs - xm) * sa + (ys - ym) * ca
+        o = (xs - xm) * ca - (ys - ym) * sa
+        omin = o.min()
+        nl = int((o.max() - omin) / ls) + 2
+        m_of = np.minimum(((o - omin) / ls).astype(np.int64), nl - 2)
+        # Positions by line, each line's in descending a (the order the sweep meets them), and
+        # what the queries read gathered in that order: memory is read in sequence, not at random.
+        start = np.zeros(nl + 1, np.int64)
+        for k in range(n):
+            start[m_of[k] + 1] += 1
+        for m in range(nl):
+            start[m + 1] += start[m]
+        fill = start[:-1].copy()
+        order = np.empty(n, np.int64)
+        for k in range(n):
+            order[fill[m_of[k]]] = k
+            fill[m_of[k]] += 1
+        for m in range(nl - 1):
+            seg = order[start[m]:start[m + 1]]
+            if seg.size > 1:
+                order[start[m]:start[m + 1]] = seg[np.argsort(-a[seg], kind="mergesort")]
+        qa = a[order]
+        qw = zc[order] - curv * qa * qa
+        cand = np.full((n, 2), np.nan)
+        buf_s = np.empty(cap)
+        buf_w = np.empty(cap)
+        hs = np.empty(cap)
+        hw = np.empty(cap)
+        q = np.empty(n, np.int64)
+        qslot = np.empty(n, np.int64)
+        us = sa / dx
+        vs = -ca / dy
+        for m in range(nl):
+            # queries: the positions below this line (slot 1) and above it (slot 0), merged by a
+            i0, i1 = (start[m - 1], start[m]) if m > 0 else (0, 0)
+            j0, j1 = start[m], start[m + 1] if m < nl - 1 else start[m]
+            nq = 0
+            while i0 < i1 or j0 < j1:
+                if j0 >= j1 or (i0 < i1 and qa[i0] >= qa[j0]):
+                    q[nq] = i0
+                    qslot[nq] = 1
+                    i0 += 1
+                else:
+                    q[nq] = j0
+                    qslot[nq] = 0
+                    j0 += 1
+                nq += 1
+            if nq == 0:
+                continue
+            om = omin + m * ls
+            lx = xm + om * ca
+            ly = ym - om * sa
+            uc = (lx - x0) / dx
+            vc = (y0 - ly) / dy
+            s_in, s_out = _line_span(uc, vc, us, vs, nx, ny)
+            s_a = max(s_in, qa[q[nq - 1]] + near)
+            if s_a >= s_out:
+                continue
+            ns = _line_samples(z, uc, vc, us, vs, s_a, s_out, curv, buf_s, buf_w)
+            top = -1
+            p = ns - 1
+            for j in range(nq):
+                r = q[j]
+                lim = qa[r] + near
+                while p >= 0 and buf_s[p] >= lim:
+                    ps = buf_s[p]
+                    pw = buf_w[p]
+                    # keep the upper hull: drop vertices under the new leftmost point's chord
+                    while top >= 1 and ((hw[top] - pw) * (hs[top - 1] - ps)
+                                        <= (hw[top - 1] - pw) * (hs[top] - ps)):
+                        top -= 1
+                    top += 1
+                    hs[top] = ps
+                    hw[top] = pw
+                    p -= 1
+                if top < 0:
+                    continue
+                v = _tangent_vertex(hs, hw, top, qa[r], qw[r])
+                cand[r, qslot[j]] = hs[v] - qa[r]
+        # each position's own ray: exact near field, exact windows around the candidates
+        for r in range(n):
+            k = order[r]
+            u0 = (xs[k] - x0) / dx
+            v0 = (y0 - ys[k]) / dy
+            t_edge = np.inf
+            if us > 0.0:
+                t_edge = min(t_edge, (nx - 1 - u0) / us)
+            elif us < 0.0:
+                t_edge = min(t_edge, -u0 / us)
+            if vs > 0.0:
+                t_edge = min(t_edge, (ny - 1 - v0) / vs)
+            elif vs < 0.0:
+                t_edge = min(t_edge, -v0 / vs)
+            t_end = t_edge * (1 - 1e-9)
+            out_len[b, k] = t_end
+            if not math.isfinite(zc[k]):
+                out_el[b, k] = np.nan
+                out_dist[b, k] = np.nan
+                continue
+            best, tb = _exact_span(z, u0, v0, us, vs, zc[k], curv, t_min, min(near, t_end))
+            if tb >= near * (1.0 - 1e-6) and t_end > near:
+                # Still rising at the near field's end (a slope climbing away): its crest lies
+                # beyond, where lines a few metres to the side see a different slope.
+                v, tv = trace_ray(z, pdata, poffs, prows, pcols, u0, v0, us, vs, zc[k],
+                                  min(rising, t_end), curv, tol, near, 0.0)
+                if v > best:
+                    best, tb = v, tv
+            c0 = cand[r, 0]
+            c1 = cand[r, 1]
+            if not math.isfinite(c0):
+                c0, c1 = c1, np.nan
+            elif math.isfinite(c1):
+                if c1 < c0:
+                    c0, c1 = c1, c0
+                if c1 - c0 <= 2.0 * win:  # one window covers both
+                    v, tv = _window(z, u0, v0, us, vs, zc[k], curv, c0 - win, c1 + win, near,
+                                    t_end)
+                    if v > best:
+                        best, tb = v, tv
+                    c0 = c1 = np.nan
+            for c in (c0, c1):
+                if math.isfinite(c):
+                    v, tv = _window(z, u0, v0, us, vs, zc[k], curv, c - win, c + win, near,
+                                    t_end)
+                    if v > best:
+                        best, tb = v, tv
+            out_el[b, k] = math.degrees(math.atan(best)) if best > -np.inf else np.nan
+            out_dist[b, k] = tb if best > -np.inf else np.nan
+
+
+__all__ = ["render_grid", "NEAR_M", "WINDOW_M"]
