@@ -281,6 +281,63 @@ def test_resume_redoes_blocks_without_markers(dem_path, clean_db, tmp_path):
     assert _files(out) == _files(clean_db)
 
 
+# --- the sweep renderer --------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def sweep_db(dem_path, tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep") / "db.zarr"
+    r = _build(dem_path, out, renderer="sweep")
+    assert r.built == 9 and r.positions == 480
+    return out
+
+
+def test_sweep_build_stores_the_kernels_skylines_and_verifies(dem_path, clean_db, sweep_db):
+    a = zarr.open_group(str(clean_db), mode="r")
+    b = zarr.open_group(str(sweep_db), mode="r")
+    for name in ("ground_z", "min_ray_m", "edge_bins"):
+        np.testing.assert_array_equal(b[name][:], a[name][:])
+    k = np.asarray(a["elevation"][:], np.int32)
+    w = np.asarray(b["elevation"][:], np.int32)
+    assert ((k == MISSING) == (w == MISSING)).all()
+    # True points of each ray: never above the kernel beyond its skip tolerance and rounding.
+    assert (w - k).max() <= 1
+    assert np.mean(np.abs(w - k) > 1) < 0.005
+    np.testing.assert_array_equal(b["coarse"][:], coarse_of(b["elevation"][:]))
+    rep = verify_database(sweep_db, dem=dem_path, samples=20)
+    assert rep.ok, rep.sample_failures
+    assert any("sweep renderer" in n for n in rep.notes)
+    res = CliRunner().invoke(cli, ["info", str(sweep_db)])
+    assert res.exit_code == 0 and "rendered by the sweep" in res.output
+
+
+def test_sweep_build_resumes_to_an_identical_store_and_keeps_its_renderer(dem_path, sweep_db, tmp_path):
+    import shutil
+
+    out = tmp_path / "resumed.zarr"
+    shutil.copytree(sweep_db, out)
+    for br, bc in ((0, 1), (2, 2)):  # the resume renders two lone blocks of the group
+        (out / MARKER_DIR / marker_name(br, bc)).unlink()
+    with pytest.raises(DatabaseError, match="renderer: the store has 'sweep', this build asks for None"):
+        _build(dem_path, out)
+    r = _build(dem_path, out, renderer="sweep")
+    assert r.built == 2 and r.resumed_from == 7
+    assert _files(out) == _files(sweep_db)
+
+
+def test_sweep_build_refuses_what_it_cannot_render(dem_path, tmp_path):
+    with pytest.raises(ParameterError, match="renderer must be one of kernel, sweep"):
+        _build(dem_path, tmp_path / "a.zarr", renderer="raytrace")
+    with pytest.raises(ParameterError, match="max-distance-m"):
+        _build(dem_path, tmp_path / "a.zarr", renderer="sweep", max_distance_m=300.0)
+    with pytest.raises(ParameterError, match="stack of DEMs"):
+        build_database([dem_path, dem_path], tmp_path / "a.zarr", BOUNDS, SPACING, workers=0,
+                       progress=False, renderer="sweep")
+    assert not (tmp_path / "a.zarr").exists()
+    res = CliRunner().invoke(cli, ["build-db", str(dem_path), "--out", str(tmp_path / "c.zarr"),
+                                   "--bounds", *map(str, BOUNDS), "--spacing-m", "10", "--workers",
+                                   "0", "--renderer", "sweep", "--max-distance-m", "300"])
+    assert res.exit_code == 2 and "--renderer kernel" in res.output
+
+
 # --- verify --------------------------------------------------------------------------------------
 def test_verify_passes_a_good_store_and_catches_corrupt_and_missing_blocks(dem_path, clean_db, tmp_path):
     import shutil

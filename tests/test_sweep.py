@@ -99,3 +99,14 @@ def test_bad_parameters_and_positions_raise_clear_errors():
         render_grid(dem, x_w, y_n, 5.0, 2, 2, near_m=0)
     with pytest.raises(OutsideDemError):
         render_grid(dem, x_w, y_n, 500.0, 2, 5)  # the grid runs off the DEM's east edge
+
+
+def test_a_positions_skyline_does_not_depend_on_the_rest_of_the_grid():
+    """Lines lie on a lattice fixed to the DEM: a block rendered alone (a resumed build) gets the
+    very values it gets inside a larger group."""
+    dem = fractal_dem(256, 30.0, relief_m=2_500.0, seed=4)
+    x_w, y_n = dem.x0 + 3_000.0, dem.y0 - 3_000.0
+    big = render_grid(dem, x_w, y_n, 5.0, 14, 12)
+    small = render_grid(dem, x_w + 3 * 5.0, y_n - 6 * 5.0, 5.0, 5, 4)
+    want = big.elevation_deg.reshape(14, 12, -1)[6:11, 3:7].reshape(20, -1)
+    np.testing.assert_array_equal(small.elevation_deg, want)

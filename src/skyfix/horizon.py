@@ -196,21 +196,24 @@ def pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end):
 
 
 @njit(cache=True, nogil=True)
-def trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, tol, t_min, t_seed):
+def trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, tol, t_min, t_seed,
+              floor=-np.inf):
     """Max tangent of the elevation angle along one ray (index space; t in metres).
 
     u = u0 + du t is the fractional column, v = v0 + dv t the fractional row.
     ``t_seed`` [m] (where the neighbouring azimuth found its skyline) is sampled first: a real
     point of this ray, so a valid lower bound that lets most near-field cells be skipped.
+    ``floor``: a tangent the ray reaches elsewhere (outside [t_min, t_end]); blocks that cannot
+    beat it are skipped, and it comes back, with distance 0, when nothing here does.
     Returns (max tangent or -inf if no terrain was seen, distance of that maximum).
     """
     ny, nx = z.shape
     nlev = prows.shape[0]
-    best = -np.inf
+    best = floor
     t_best = 0.0
     if t_min < t_seed < t_end:
         hs = bilinear(z, u0 + du * t_seed, v0 + dv * t_seed)
-        if math.isfinite(hs):
+        if math.isfinite(hs) and (hs - zc) / t_seed - curv * t_seed > best:
             best = (hs - zc) / t_seed - curv * t_seed
             t_best = t_seed
     t = t_min

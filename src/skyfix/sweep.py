@@ -67,7 +67,7 @@ def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows:
     skip_tol_deg : [deg] block-skip tolerance of the pyramid trace past ``near_m`` (as the
         per-point kernel's)
     near_m : [m] every position's own ray is exact out to this distance
-    line_spacing_m : [m] distance between the sweep lines (default: half ``spacing_m``)
+    line_spacing_m : [m] distance between the sweep lines (default: ``spacing_m``)
     window_m : [m] half-width of the exact trace around each line's skyline point (default: one
         DEM cell, at least :data:`WINDOW_M`)
     rising_m : [m] a ray whose near-field maximum is at ``near_m`` (still rising) is traced
@@ -84,7 +84,7 @@ def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows:
         raise ParameterError(f"camera height must be >= 0 m, got {camera_height_m}")
     if int(azimuth_bins) != azimuth_bins or azimuth_bins <= 0:
         raise ParameterError(f"azimuth bins must be a positive whole number, got {azimuth_bins}")
-    ls = 0.5 * spacing_m if line_spacing_m is None else float(line_spacing_m)
+    ls = float(spacing_m) if line_spacing_m is None else float(line_spacing_m)
     win = max(WINDOW_M, dem.dx, dem.dy) if window_m is None else float(window_m)
     for name, v in (("line spacing", ls), ("near field", near_m), ("window", win),
                     ("rising distance", rising_m)):
@@ -132,28 +132,35 @@ def _line_span(uc, vc, us, vs, nx, ny):
 
 
 @njit(cache=True, nogil=True)
-def _line_samples(z, uc, vc, us, vs, s_a, s_b, curv, out_s, out_w):
-    """Terrain along a line in [s_a, s_b], ascending: out_s [m] and ``w = z - curv s**2`` [m], at
-    both ends, at every grid-line crossing (the bilinear surface's kinks) and at the top of every
+def _line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w):
+    """Terrain along a line from the grid-line crossing at or before ``s_a`` (not before the
+    DEM entry ``s_in``) to ``s_b``, ascending: out_s [m] and ``w = z - curv s**2`` [m], at every
+    grid-line crossing (the bilinear surface's kinks), at both ends, and at the top of every
     crossing-to-crossing piece that bulges upward (inside a cell the surface along a line is the
     parabola ``h + b s + e us vs s**2``: a ridge crossing a cell diagonally crests between the
-    crossings, metres above both). Samples over nodata are left out. Returns the count."""
+    crossings, metres above both). Starting on a crossing makes the samples past any point the
+    same whichever queries asked for the line. Samples over nodata are left out. Returns the
+    count."""
     ny, nx = z.shape
     cap = out_s.shape[0]
     ku = math.inf
     kv = math.inf
     step_u = math.inf
     step_v = math.inf
+    s0 = s_in
     if us != 0.0:
         step_u = abs(1.0 / us)
         u_a = uc + us * s_a
-        k = math.floor(u_a) + 1.0 if us > 0 else math.ceil(u_a) - 1.0
-        ku = (k - uc) / us
+        k = math.floor(u_a) if us > 0 else math.ceil(u_a)
+        s0 = max(s0, (k - uc) / us)
+        ku = (k + (1.0 if us > 0 else -1.0) - uc) / us
     if vs != 0.0:
         step_v = abs(1.0 / vs)
         v_a = vc + vs * s_a
-        k = math.floor(v_a) + 1.0 if vs > 0 else math.ceil(v_a) - 1.0
-        kv = (k - vc) / vs
+        k = math.floor(v_a) if vs > 0 else math.ceil(v_a)
+        s0 = max(s0, (k - vc) / vs)
+        kv = (k + (1.0 if vs > 0 else -1.0) - vc) / vs
+    s_a = min(s0, s_a)
     s = s_a
     h0 = bilinear(z, uc + us * s, vc + vs * s)
     n = 0
@@ -286,8 +293,10 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
     ny, nx = z.shape
     n = xs.shape[0]
     nb = saz.shape[0]
-    xm = 0.5 * (xs.min() + xs.max())
-    ym = 0.5 * (ys.min() + ys.max())
+    # Along and across from the DEM's corner, lines on a lattice fixed to it: a position's
+    # candidates, hence its skyline, do not depend on which other positions share the call.
+    xm = x0
+    ym = y0
     zc = np.empty(n)
     for k in range(n):
         g = bilinear(z, (xs[k] - x0) / dx, (y0 - ys[k]) / dy)
@@ -304,9 +313,10 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
         # along (a) the ray, across (o) it: d = (sa, ca), n = (ca, -sa) in (east, north)
         a = (xs - xm) * sa + (ys - ym) * ca
         o = (xs - xm) * ca - (ys - ym) * sa
-        omin = o.min()
-        nl = int((o.max() - omin) / ls) + 2
-        m_of = np.minimum(((o - omin) / ls).astype(np.int64), nl - 2)
+        m_glob = np.floor(o / ls).astype(np.int64)
+        m_lo = m_glob.min()
+        m_of = m_glob - m_lo
+        nl = m_of.max() + 2
         # Positions by line, each line's in descending a (the order the sweep meets them), and
         # what the queries read gathered in that order: memory is read in sequence, not at random.
         start = np.zeros(nl + 1, np.int64)
@@ -351,7 +361,7 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
                 nq += 1
             if nq == 0:
                 continue
-            om = omin + m * ls
+            om = (m + m_lo) * ls
             lx = xm + om * ca
             ly = ym - om * sa
             uc = (lx - x0) / dx
@@ -360,7 +370,7 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
             s_a = max(s_in, qa[q[nq - 1]] + near)
             if s_a >= s_out:
                 continue
-            ns = _line_samples(z, uc, vc, us, vs, s_a, s_out, curv, buf_s, buf_w)
+            ns = _line_samples(z, uc, vc, us, vs, s_a, s_in, s_out, curv, buf_s, buf_w)
             top = -1
             p = ns - 1
             for j in range(nq):
@@ -381,9 +391,12 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
                     continue
                 v = _tangent_vertex(hs, hw, top, qa[r], qw[r])
                 cand[r, qslot[j]] = hs[v] - qa[r]
-        # each position's own ray: exact near field, exact windows around the candidates
+        # Each position's own ray, in grid order (the outputs are written in sequence): the exact
+        # near field, and exact windows around the candidates.
+        candk = np.empty((n, 2))
         for r in range(n):
-            k = order[r]
+            candk[order[r]] = cand[r]
+        for k in range(n):
             u0 = (xs[k] - x0) / dx
             v0 = (y0 - ys[k]) / dy
             t_edge = np.inf
@@ -402,15 +415,9 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
                 out_dist[b, k] = np.nan
                 continue
             best, tb = _exact_span(z, u0, v0, us, vs, zc[k], curv, t_min, min(near, t_end))
-            if tb >= near * (1.0 - 1e-6) and t_end > near:
-                # Still rising at the near field's end (a slope climbing away): its crest lies
-                # beyond, where lines a few metres to the side see a different slope.
-                v, tv = trace_ray(z, pdata, poffs, prows, pcols, u0, v0, us, vs, zc[k],
-                                  min(rising, t_end), curv, tol, near, 0.0)
-                if v > best:
-                    best, tb = v, tv
-            c0 = cand[r, 0]
-            c1 = cand[r, 1]
+            rising_near = tb >= near * (1.0 - 1e-6)
+            c0 = candk[k, 0]
+            c1 = candk[k, 1]
             if not math.isfinite(c0):
                 c0, c1 = c1, np.nan
             elif math.isfinite(c1):
@@ -428,6 +435,14 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
                                     t_end)
                     if v > best:
                         best, tb = v, tv
+            if rising_near and t_end > near:
+                # Still climbing at the near field's end (a slope whose crest lies beyond, where
+                # lines a few metres to the side see another slope): exact on to ``rising``, where
+                # the pyramid skips what cannot beat the skyline found so far.
+                v, tv = trace_ray(z, pdata, poffs, prows, pcols, u0, v0, us, vs, zc[k],
+                                  min(rising, t_end), curv, tol, near, 0.0, best)
+                if v > best:
+                    best, tb = v, tv
             out_el[b, k] = math.degrees(math.atan(best)) if best > -np.inf else np.nan
             out_dist[b, k] = tb if best > -np.inf else np.nan
 

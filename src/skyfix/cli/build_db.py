@@ -24,6 +24,11 @@ import click
               help="Use an existing Dask cluster (tcp://HOST:PORT) sharing this file system.")
 @click.option("--block-positions", type=int, default=64, show_default=True,
               help="Positions per block side: one task and one zarr chunk per block.")
+@click.option("--renderer", type=click.Choice(["kernel", "sweep"]), default="kernel", show_default=True,
+              help="kernel: every ray traced on its own. sweep: lines of each azimuth shared by "
+                   "16 blocks at a time, each position's own ray exact near it and where the lines "
+                   "point (2-3x faster; never above the kernel, more than 0.01 deg below it in "
+                   "0.01-0.1 % of bins; one DEM, no --max-distance-m).")
 @click.option("--overwrite", is_flag=True,
               help="Delete an existing database and start afresh (only once every option is checked "
                    "and the workers are up).")
@@ -32,7 +37,7 @@ import click
               help="Another DEM of the same place (repeatable): a stack, the finest DEM winning "
                    "wherever it has heights (HiRISE inside CTX inside MOLA).")
 def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_distance_m, planet,
-             workers, scheduler, block_positions, overwrite, no_progress, more_dems):
+             workers, scheduler, block_positions, renderer, overwrite, no_progress, more_dems):
     """Render the skyline at every grid position of BOUNDS from DEM into a zarr store.
 
     Killed at any point, the same command resumes where it stopped (it also redoes built blocks
@@ -46,7 +51,7 @@ def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_dis
     r = build_database([dem, *more_dems] if more_dems else dem, out, bounds, spacing_m, camera_height_m=camera_height_m,
                        azimuth_bins=azimuth_bins, max_distance_m=max_distance_m, planet=planet,
                        workers=workers, scheduler=scheduler, overwrite=overwrite,
-                       progress=not no_progress, block=block_positions)
+                       progress=not no_progress, block=block_positions, renderer=renderer)
     if r.indexed:
         click.echo(f"{r.path}: coarse index added to {r.indexed} block{'s' * (r.indexed != 1)} built earlier (the search "
                    "now decodes only the blocks it needs)")

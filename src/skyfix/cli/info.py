@@ -46,7 +46,7 @@ def _print(d: dict) -> None:
         f"blocks of {g['block_shape'][0]} x {g['block_shape'][1]}",
         f"skylines     {d['azimuth_bins']} azimuth bins, camera {d['camera_height_m']:g} m above ground, "
         f"rays to {maxd}, planet {p['name']} (R {p['radius_m']:.0f} m, k {p['refraction_k']:g}), "
-        f"stored in steps of {d['scale_deg']:g} deg",
+        f"stored in steps of {d['scale_deg']:g} deg, rendered by the {d['renderer']}",
         f"dem          {d['dem']['source']} (sha256 {d['dem']['sha256'][:16]}...)",
         f"completeness {d['blocks_done']} of {d['n_blocks']} blocks"
         + (f" built, DAMAGED: {len(d['blocks_data_missing'])} of them without their data files"

@@ -27,12 +27,14 @@ Blocks
 
 Files: :mod:`.layout` (format constants, the grid, quantisation), :mod:`.executors` (where blocks
 run), :mod:`.integrity` (the state of a store on disk), :mod:`.chunks` (the skyline arrays' codecs
-and their direct decoding), :mod:`.coarse` (the coarse index), :mod:`.build`, :mod:`.store`
+and their direct decoding), :mod:`.coarse` (the coarse index), :mod:`.tasks` (rendering and writing blocks), :mod:`.build`
+(planning and running a build), :mod:`.store`
 (reading), :mod:`.verify` (checks and ``skyfix info``).
 """
 
 from .build import (BuildResult, build_database, build_params, check_build_size, dir_size,
-                    estimate_build_bytes, render_block)
+                    estimate_build_bytes)
+from .tasks import RENDERERS, render_block
 from .executors import InProcessExecutor, check_executor_options, default_workers, make_executor
 from .integrity import done_blocks
 from .layout import (BLOCK, DATA_ARRAYS, FORMAT, FORMAT_VERSION, MARKER_DIR, MAX_BUILD_BYTES,
@@ -47,4 +49,4 @@ __all__ = ["BLOCK", "DATA_ARRAYS", "FORMAT", "FORMAT_VERSION", "MARKER_DIR", "MA
            "build_database", "build_params", "check_build_size", "check_executor_options",
            "default_workers", "describe", "dequantise", "dir_size", "done_blocks",
            "estimate_build_bytes", "make_executor", "marker_name", "open_database", "quantise",
-           "read_marker", "render_block", "verify_database"]
+           "read_marker", "render_block", "RENDERERS", "verify_database"]

@@ -23,6 +23,15 @@ from .store import open_database
 warnings.filterwarnings("ignore", message="Numcodecs codecs are not in the Zarr")
 
 
+#: A store built by the sweep renderer is re-rendered with the per-point kernel: its skylines are
+#: true points of each ray, so they exceed the kernel's by at most the kernel's own skip tolerance
+#: (0.002 deg, SKIP_TOL_DEG), and fall short of it in few bins (bench_sweep.py: 0.01-0.1 % beyond
+#: 0.01 deg, at most 0.6 deg). A damaged chunk or another DEM errs both ways and in many bins.
+SWEEP_OVER_DEG = 0.0025
+SWEEP_SHORT_SHARE = 0.05
+SWEEP_SHORT_MAX_DEG = 3.0
+
+
 # --- checks ----------------------------------------------------------------------------------------
 @dataclass
 class VerifyReport:
@@ -146,12 +155,26 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
                          skip_tol_deg=float(db.attrs["build"].get("skip_tol_deg", SKIP_TOL_DEG)))
     stored = db.profiles_at(x, y)
     tol = db.scale_deg / 2 + 1e-4
-    err = np.abs(stored - hb.elevation_deg)
+    diff = stored - hb.elevation_deg
+    err = np.abs(diff)
     nan_mismatch = np.isnan(stored) != np.isnan(hb.elevation_deg)
     rep.samples = len(x)
     rep.sample_max_error_deg = float(np.nanmax(err)) if np.isfinite(err).any() else 0.0
+    sweep = db.attrs["build"].get("renderer") == "sweep"
+    if sweep:  # the kernel re-renders: the sweep's skylines may fall short of it, never exceed it
+        short = np.nan_to_num(-diff) > tol
+        rep.notes.append(
+            f"built with the sweep renderer: {int(short.sum())} of {short.size} re-rendered bins "
+            f"lie more than {tol:.4f} deg below the per-point kernel (allowed: up to "
+            f"{SWEEP_SHORT_SHARE:.0%} of a position's bins, by up to {SWEEP_SHORT_MAX_DEG:g} deg)")
     for i in range(len(x)):
-        if nan_mismatch[i].any() or np.nanmax(err[i], initial=0.0) > tol:
+        if sweep:
+            over = np.nanmax(diff[i], initial=0.0) > tol + SWEEP_OVER_DEG
+            bad = (over or np.mean(np.nan_to_num(-diff[i]) > tol) > SWEEP_SHORT_SHARE
+                   or np.nanmax(-diff[i], initial=0.0) > SWEEP_SHORT_MAX_DEG)
+        else:
+            bad = np.nanmax(err[i], initial=0.0) > tol
+        if nan_mismatch[i].any() or bad:
             rep.sample_failures.append(
                 f"position row {rows[i]} col {cols[i]} ({x[i]:.1f}, {y[i]:.1f}): stored skyline differs "
                 f"from a re-render by up to {np.nanmax(err[i], initial=0.0):.4f} deg "
@@ -181,6 +204,7 @@ def describe(path) -> dict:
         "positions": nx * ny, "azimuth_bins": db.azimuth_bins, "camera_height_m": db.camera_height_m,
         "planet": a["planet"], "max_distance_m": db.max_distance_m,
         "scale_deg": db.scale_deg, "dem": a["dem"],
+        "renderer": a.get("build", {}).get("renderer", "kernel"),
         "blocks_done": db.blocks_done, "n_blocks": db.n_blocks, "complete": db.is_complete,
         "blocks_data_missing": [list(b) for b in db.blocks_data_missing],
         "coarse_index_blocks": len(db.indexed_blocks),
