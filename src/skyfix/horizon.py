@@ -17,14 +17,12 @@ Two implementations:
 * :func:`reference_horizon` (NumPy, slow): samples every ray densely (0.25 m steps over the first
   cell, then every quarter cell) with bilinear heights. Tests compare the two.
 
-Why no horizon sweep (Stewart 1998) for the database: a sweep shares each line of one azimuth
-among the positions near it, so a position's ray runs up to half the line spacing sideways, an
-error of slope x offset / distance: within 0.01 deg of this kernel beyond 300 m needs lines
-~10 cm apart (100 k per azimuth over 7 km), and near terrain shared at all errs by degrees. Kept
-exact per position, the near field alone uses the budget: this kernel renders 31,700 skylines/s
-with rays cut at 100 m, 16,500 at 300 m, 8,400 at 1 km and 5,000 to the DEM edge (Sierra, a 5 m
-block, 360 bins, two threads, idle; 2026-11-26), and a 7 x 7 km database at 5 m in 2 minutes
-needs 16,300/s in all.
+A pure horizon sweep (Stewart 1998) is no substitute for this kernel: a sweep shares each line of
+one azimuth among the positions near it, so a position's ray runs up to half the line spacing
+sideways, an error of slope x offset / distance: degrees in the near field, and 0.06 deg at p99
+with lines 5 m apart even past 100 m (Sierra, 2026-11-27). :mod:`skyfix.sweep` uses the lines only
+to find *where* each position's skyline lies and maximises the position's own ray exactly there
+and near it, with this module's cell maxima (``build-db --renderer sweep``).
 """
 
 from __future__ import annotations

@@ -25,7 +25,13 @@ answer the per-point kernel's:
    understates it only where the position's skyline lies on terrain that neither bracketing line
    ranks highest (a knob between the lines, 100 m - 1 km away, that both pass beside).
 
-Measured against the per-point kernel (``benchmarks/bench_sweep.py``): see the README's row.
+Against the per-point kernel (``benchmarks/bench_sweep.py``, every position and bin of 1 x 1 km at
+5 m on four DEMs, 2026-11-27): p99 0.0000 deg, 0.010-0.076 % of bins beyond 0.01 deg, max
+0.22-0.59 deg, 2.2-3.5x its rate. Where the time goes (one 256 x 256 task, one thread): the
+position's own rays 64 %, the lines' samples and hulls 20 %, sorting positions into lines 10 %,
+the hull queries 4 %. The parameters' trade (near field and climb, Sierra): 60 m and no climb
+3.2x the kernel with 0.048 % of bins beyond 0.01 deg (max 1.25); 100 m and a climb to 400 m
+(the defaults) 2.5x, 0.013 % (max 0.62).
 ``max_distance_m`` is not supported (a hull cannot forget terrain behind the limit); callers use
 the per-point kernel then.
 """
