@@ -194,6 +194,60 @@ def pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end):
 
 
 @njit(cache=True, nogil=True)
+def edge_distance(u0, v0, du, dv, nx, ny):
+    """Distance [m] along the ray u = u0 + du t, v = v0 + dv t (index space) from its start to
+    the DEM's pixel-centre hull, where heights end (inf for a ray that never leaves it)."""
+    t_edge = np.inf
+    if du > 0.0:
+        t_edge = min(t_edge, (nx - 1 - u0) / du)
+    elif du < 0.0:
+        t_edge = min(t_edge, -u0 / du)
+    if dv > 0.0:
+        t_edge = min(t_edge, (ny - 1 - v0) / dv)
+    elif dv < 0.0:
+        t_edge = min(t_edge, -v0 / dv)
+    return t_edge
+
+
+@njit(cache=True, nogil=True)
+def cell_max(z, i, j, u0, v0, du, dv, zc, curv, t0, t1):
+    """The ray's maximum tangent over [t0, t1] [m] inside cell (i, j), and where: along a ray the
+    bilinear surface of one cell is a quadratic in ``t``, so the tangent is ``A/t + B + C t`` and
+    its maximum lies at an end or at the one stationary point ``sqrt(A/C)``. (-inf, t0) where a
+    corner is nodata. u = u0 + du t, v = v0 + dv t in index space; zc [m] the camera height;
+    curv [1/m] the curvature and refraction coefficient."""
+    z00 = z[i, j]
+    z01 = z[i, j + 1]
+    z10 = z[i + 1, j]
+    z11 = z[i + 1, j + 1]
+    if not (math.isfinite(z00) and math.isfinite(z01) and math.isfinite(z10) and math.isfinite(z11)):
+        return -np.inf, t0
+    au = u0 - j
+    av = v0 - i
+    e = z00 - z01 - z10 + z11
+    p = z00 + (z01 - z00) * au + (z10 - z00) * av + e * au * av
+    b = (z01 - z00) * du + (z10 - z00) * dv + e * (au * dv + av * du)
+    aa = p - zc
+    cc = e * du * dv - curv
+    f0 = aa / t0 + b + cc * t0
+    f1 = aa / t1 + b + cc * t1
+    if f0 >= f1:
+        f = f0
+        tf = t0
+    else:
+        f = f1
+        tf = t1
+    if aa < 0.0 and cc < 0.0:
+        ts = math.sqrt(aa / cc)
+        if t0 < ts < t1:
+            fs = aa / ts + b + cc * ts
+            if fs > f:
+                f = fs
+                tf = ts
+    return f, tf
+
+
+@njit(cache=True, nogil=True)
 def trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, tol, t_min, t_seed,
               floor=-np.inf):
     """Max tangent of the elevation angle along one ray (index space; t in metres).
@@ -233,37 +287,8 @@ def trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, to
         if level > 0:
             level -= 1
             continue
-        # Level 0: exact maximum of A/t + B + C t over [t, t_exit] inside cell (i, j).
-        z00 = z[i, j]
-        z01 = z[i, j + 1]
-        z10 = z[i + 1, j]
-        z11 = z[i + 1, j + 1]
-        if not (math.isfinite(z00) and math.isfinite(z01) and math.isfinite(z10) and math.isfinite(z11)):
-            t = t_exit + eps_t
-            continue
-        au = u0 - j
-        av = v0 - i
-        e = z00 - z01 - z10 + z11
-        p = z00 + (z01 - z00) * au + (z10 - z00) * av + e * au * av
-        b = (z01 - z00) * du + (z10 - z00) * dv + e * (au * dv + av * du)
-        q = e * du * dv
-        aa = p - zc
-        cc = q - curv
-        f0 = aa / t + b + cc * t
-        f1 = aa / t_exit + b + cc * t_exit
-        if f0 >= f1:
-            f = f0
-            tf = t
-        else:
-            f = f1
-            tf = t_exit
-        if aa < 0.0 and cc < 0.0:
-            ts = math.sqrt(aa / cc)
-            if t < ts < t_exit:
-                fs = aa / ts + b + cc * ts
-                if fs > f:
-                    f = fs
-                    tf = ts
+        # Level 0: the exact maximum inside cell (i, j).
+        f, tf = cell_max(z, i, j, u0, v0, du, dv, zc, curv, t, t_exit)
         if f > best:
             best = f
             t_best = tf
@@ -294,17 +319,8 @@ def _render_batch(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz,
                 du = 0.0
             if abs(dv) < 1e-12:
                 dv = 0.0
-            # Distance to the pixel-centre hull along the ray: rays stop at the DEM edge.
-            t_edge = np.inf
-            if du > 0.0:
-                t_edge = min(t_edge, (nx - 1 - u0) / du)
-            elif du < 0.0:
-                t_edge = min(t_edge, -u0 / du)
-            if dv > 0.0:
-                t_edge = min(t_edge, (ny - 1 - v0) / dv)
-            elif dv < 0.0:
-                t_edge = min(t_edge, -v0 / dv)
-            t_end = min(t_edge * (1 - 1e-9), max_d)
+            # rays stop at the DEM edge
+            t_end = min(edge_distance(u0, v0, du, dv, nx, ny) * (1 - 1e-9), max_d)
             out_len[k, b] = t_end
             if not math.isfinite(zc):
                 out_el[k, b] = np.nan

@@ -44,8 +44,8 @@ import numpy as np
 
 from .dem import Dem
 from .errors import ParameterError
-from .horizon import (T_MIN_M, HorizonBatch, azimuth_centres, bilinear, packed_pyramid,
-                      trace_ray)
+from .horizon import (T_MIN_M, HorizonBatch, azimuth_centres, bilinear, cell_max,
+                      edge_distance, packed_pyramid, trace_ray)
 from .jit import njit, prange
 from .planets import resolve_planet
 
@@ -138,6 +138,17 @@ def _line_span(uc, vc, us, vs, nx, ny):
 
 
 @njit(cache=True, nogil=True)
+def _crossings(c, d, s_a):
+    """Where the coordinate ``c + d s`` crosses whole numbers around ``s_a`` [m]: the last
+    crossing at or before it, the next one after it, and the step between crossings (-inf, inf,
+    inf when the line runs along the axis)."""
+    if d == 0.0:
+        return -np.inf, np.inf, np.inf
+    k = math.floor(c + d * s_a) if d > 0 else math.ceil(c + d * s_a)
+    return (k - c) / d, (k + (1.0 if d > 0 else -1.0) - c) / d, abs(1.0 / d)
+
+
+@njit(cache=True, nogil=True)
 def _line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w):
     """Terrain along a line from the grid-line crossing at or before ``s_a`` (not before the
     DEM entry ``s_in``) to ``s_b``, ascending: out_s [m] and ``w = z - curv s**2`` [m], at every
@@ -149,23 +160,9 @@ def _line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w):
     count."""
     ny, nx = z.shape
     cap = out_s.shape[0]
-    ku = math.inf
-    kv = math.inf
-    step_u = math.inf
-    step_v = math.inf
-    s0 = s_in
-    if us != 0.0:
-        step_u = abs(1.0 / us)
-        u_a = uc + us * s_a
-        k = math.floor(u_a) if us > 0 else math.ceil(u_a)
-        s0 = max(s0, (k - uc) / us)
-        ku = (k + (1.0 if us > 0 else -1.0) - uc) / us
-    if vs != 0.0:
-        step_v = abs(1.0 / vs)
-        v_a = vc + vs * s_a
-        k = math.floor(v_a) if vs > 0 else math.ceil(v_a)
-        s0 = max(s0, (k - vc) / vs)
-        kv = (k + (1.0 if vs > 0 else -1.0) - vc) / vs
+    s0u, ku, step_u = _crossings(uc, us, s_a)
+    s0v, kv, step_v = _crossings(vc, vs, s_a)
+    s0 = max(s_in, s0u, s0v)
     s_a = min(s0, s_a)
     s = s_a
     h0 = bilinear(z, uc + us * s, vc + vs * s)
@@ -226,8 +223,8 @@ def _tangent_vertex(hs, hw, top, qs, qw):
 @njit(cache=True, nogil=True)
 def _exact_span(z, u0, v0, us, vs, zc, curv, lo, hi):
     """The ray's exact maximum tangent over [lo, hi] [m] and where it is: every cell the span
-    crosses, its bilinear piece ``A/t + B + C t`` maximised in closed form as in the per-point
-    kernel's level 0, without the pyramid (a span of a few cells gains nothing from skipping).
+    crosses maximised in closed form (:func:`~skyfix.horizon.cell_max`, the per-point kernel's
+    level 0), without the pyramid (a span of a few cells gains nothing from skipping).
     (-inf, 0) over nodata only."""
     ny, nx = z.shape
     best = -np.inf
@@ -250,34 +247,10 @@ def _exact_span(z, u0, v0, us, vs, zc, curv, lo, hi):
             te = min(te, (i - v0) / vs)
         if te <= t:
             te = t + 1e-6
-        z00 = z[i, j]
-        z01 = z[i, j + 1]
-        z10 = z[i + 1, j]
-        z11 = z[i + 1, j + 1]
-        if math.isfinite(z00) and math.isfinite(z01) and math.isfinite(z10) and math.isfinite(z11):
-            au = u0 - j
-            av = v0 - i
-            e = z00 - z01 - z10 + z11
-            p = z00 + (z01 - z00) * au + (z10 - z00) * av + e * au * av
-            b = (z01 - z00) * us + (z10 - z00) * vs + e * (au * vs + av * us)
-            aa = p - zc
-            cc = e * us * vs - curv
-            f = aa / t + b + cc * t
-            tf = t
-            f1 = aa / te + b + cc * te
-            if f1 > f:
-                f = f1
-                tf = te
-            if aa < 0.0 and cc < 0.0:
-                ts = math.sqrt(aa / cc)
-                if t < ts < te:
-                    fs = aa / ts + b + cc * ts
-                    if fs > f:
-                        f = fs
-                        tf = ts
-            if f > best:
-                best = f
-                tb = tf
+        f, tf = cell_max(z, i, j, u0, v0, us, vs, zc, curv, t, te)
+        if f > best:
+            best = f
+            tb = tf
         t = te
     return best, tb
 
@@ -405,16 +378,7 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
         for k in range(n):
             u0 = (xs[k] - x0) / dx
             v0 = (y0 - ys[k]) / dy
-            t_edge = np.inf
-            if us > 0.0:
-                t_edge = min(t_edge, (nx - 1 - u0) / us)
-            elif us < 0.0:
-                t_edge = min(t_edge, -u0 / us)
-            if vs > 0.0:
-                t_edge = min(t_edge, (ny - 1 - v0) / vs)
-            elif vs < 0.0:
-                t_edge = min(t_edge, -v0 / vs)
-            t_end = t_edge * (1 - 1e-9)
+            t_end = edge_distance(u0, v0, us, vs, nx, ny) * (1 - 1e-9)
             out_len[b, k] = t_end
             if not math.isfinite(zc[k]):
                 out_el[b, k] = np.nan
