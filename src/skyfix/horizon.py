@@ -193,7 +193,7 @@ def pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end):
     return i, j, bi, bj, t_exit
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")  # in the kernels' loops: no call per ray
 def edge_distance(u0, v0, du, dv, nx, ny):
     """Distance [m] along the ray u = u0 + du t, v = v0 + dv t (index space) from its start to
     the DEM's pixel-centre hull, where heights end (inf for a ray that never leaves it)."""
@@ -209,7 +209,7 @@ def edge_distance(u0, v0, du, dv, nx, ny):
     return t_edge
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")  # in the kernels' loops: no call per cell
 def cell_max(z, i, j, u0, v0, du, dv, zc, curv, t0, t1):
     """The ray's maximum tangent over [t0, t1] [m] inside cell (i, j), and where: along a ray the
     bilinear surface of one cell is a quadratic in ``t``, so the tangent is ``A/t + B + C t`` and
