@@ -4,6 +4,7 @@ SciPy is not even in the board install)."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -147,9 +148,11 @@ def test_board_heap_gives_large_blocks_back():
         "del b\n"
         "print(anon() - base)\n")
     left = {}
+    # glibc's own defaults: a MALLOC_* variable in the environment (a shell's, Dask's) changes them
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
     for setting in ("board_heap", "one_malloc_arena"):
         r = subprocess.run([sys.executable, "-c", prog, setting], capture_output=True, text=True,
-                           timeout=60)
+                           timeout=60, env=env)
         took, mb = r.stdout.split()
         assert took == "True", r.stderr
         left[setting] = int(mb)

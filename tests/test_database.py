@@ -229,9 +229,13 @@ def test_edge_bins_count_rays_that_hit_the_dem_edge(dem_path, tmp_path):
 # --- executors and resume ----------------------------------------------------------------------
 def test_local_cluster_build_equals_in_process(dem_path, clean_db, tmp_path):
     out = tmp_path / "cluster.zarr"
+    environ = dict(os.environ)
     r = _build(dem_path, out, workers=2)
     assert r.built == 9 and r.positions == 480
     assert _files(out) == _files(clean_db)
+    # Dask puts its workers' malloc settings into this process's environment; the build takes
+    # them out again, or every later child process (a test's, a pipeline's) inherits them.
+    assert dict(os.environ) == environ
 
 
 def test_killed_build_resumes_to_an_identical_store(dem_path, tmp_path):

@@ -103,11 +103,19 @@ def make_executor(workers: int | None = None, scheduler: str | None = None):
     # The worker processes start with Ctrl-C ignored (a child inherits SIG_IGN, and Python then
     # installs no KeyboardInterrupt handler): an interrupt reaches this process alone, which
     # closes the cluster, instead of every worker printing its traceback.
-    with _sigint_ignored():
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
-    with cluster, Client(cluster) as client:
-        yield client.get_executor(pure=False), n, True
+    # Dask sets its workers' malloc settings (MALLOC_TRIM_THRESHOLD_) in this process's own
+    # environment, where every later child would inherit them: put the environment back after.
+    environ = dict(os.environ)
+    try:
+        with _sigint_ignored():
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
+        with cluster, Client(cluster) as client:
+            yield client.get_executor(pure=False), n, True
+    finally:
+        for k in set(os.environ) - set(environ):
+            del os.environ[k]
+        os.environ.update(environ)
 
 
 @contextmanager
