@@ -3,12 +3,15 @@
 :func:`skyfix.horizon.render_horizons` traces every ray of every position on its own (about 130
 pyramid steps a ray on the Sierra DEM, 67 of them exact cell maxima near the skyline), so a
 7 x 7 km database at 5 m costs 700 M such rays. Neighbouring positions look at almost the same
-terrain; this renderer shares that work the way a horizon sweep does (Stewart 1998), and keeps the
-answer the per-point kernel's:
+terrain; this renderer shares that work the way a horizon sweep does (Stewart 1998), while every
+value it returns stays, as the kernel's, the maximum over true points of the position's own ray:
 
 1. **Lines** (shared). For each azimuth, lines of that azimuth every ``line_spacing_m`` across the
-   grid. Along each line the terrain is sampled where the line crosses the DEM's grid lines (the
-   bilinear surface's kinks), from the DEM edge back to the grid, and kept as an upper convex hull.
+   grid, on a lattice fixed to the DEM's corner (a position's answer does not depend on which
+   other positions share the call: a resumed block gets the values it got in its group). Along
+   each line the terrain is sampled where the line crosses the DEM's grid lines (the bilinear
+   surface's kinks) and at the crest of every piece between them that bulges upward, from the
+   DEM edge back to the grid, and kept as an upper convex hull.
    Curvature and refraction enter exactly: with ``w(s) = z(s) - c s**2`` for terrain and camera
    alike, the tangent of the elevation angle from along-position ``a`` is the slope from
    ``(a, w_cam)`` to ``(s, w(s))`` plus ``2 c a`` (``c`` = :attr:`Planet.curvature_coeff`), and a
@@ -80,7 +83,9 @@ def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows:
         exactly out to this distance
 
     Rays run to the DEM edge (no maximum distance). Returns a :class:`HorizonBatch` as
-    :func:`~skyfix.horizon.render_horizons` does, with ``skyline_distance_m``.
+    :func:`~skyfix.horizon.render_horizons` does, with ``skyline_distance_m``. Memory: three float32
+    arrays of (positions, bins), built bin-major and then transposed: about 8.6 kB per position at
+    360 bins (0.57 GB for 256 x 256).
     """
     if not (spacing_m > 0 and math.isfinite(spacing_m)):
         raise ParameterError(f"grid spacing must be > 0 m, got {spacing_m}")
