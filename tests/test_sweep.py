@@ -110,3 +110,20 @@ def test_a_positions_skyline_does_not_depend_on_the_rest_of_the_grid():
     small = render_grid(dem, x_w + 3 * 5.0, y_n - 6 * 5.0, 5.0, 5, 4)
     want = big.elevation_deg.reshape(14, 12, -1)[6:11, 3:7].reshape(20, -1)
     np.testing.assert_array_equal(small.elevation_deg, want)
+
+
+@pytest.mark.parametrize("corner", ["north-west", "south-east"])
+def test_grids_at_the_dem_edge_agree_with_the_kernel(corner):
+    """Rays that leave the DEM within metres, and lines that miss it or outlive the ray: the
+    lines say nothing there, and the ray is traced whole."""
+    dem = fractal_dem(128, 30.0, relief_m=1_500.0, seed=9)
+    xmin, ymin, xmax, ymax = dem.bounds
+    x_w, y_n = (xmin, ymax) if corner == "north-west" else (xmax - 30.0, ymin + 37.5)
+    hb = render_grid(dem, x_w, y_n, 7.5, 6, 5)
+    ref = render_horizons(dem, hb.x, hb.y)
+    np.testing.assert_array_equal(np.isnan(hb.elevation_deg), np.isnan(ref.elevation_deg))
+    np.testing.assert_allclose(hb.ray_length_m, ref.ray_length_m, rtol=1e-6)
+    d = hb.elevation_deg.astype(np.float64) - ref.elevation_deg
+    assert np.nanmax(d) < 0.0015
+    assert np.nanmean(np.abs(d) > 0.01) < 0.002
+    assert np.nanmax(np.abs(d)) < 0.5
