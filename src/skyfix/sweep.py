@@ -393,17 +393,22 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
             rising_near = tb >= near * (1.0 - 1e-6)
             c0 = candk[k, 0]
             c1 = candk[k, 1]
-            if t_end > near and (c0 > t_end - win or c1 > t_end - win
-                                 or not (math.isfinite(c0) or math.isfinite(c1))):
-                # A line's skyline at or past this ray's end at the DEM edge (lines a few metres
-                # apart leave the DEM metres apart there), or neither line reached the DEM (a
-                # position at its edge): the lines say nothing of this ray. All of it.
+            if t_end > near and (not (math.isfinite(c0) or math.isfinite(c1))
+                                 or (t_end <= rising and (c0 > t_end or c1 > t_end))):
+                # Neither line reached the DEM (a position at its edge), or one ran on past this
+                # short ray's end at the DEM edge: the lines say nothing of this ray. All of it.
                 v, tv = trace_ray(z, pdata, poffs, prows, pcols, u0, v0, us, vs, zc[k], t_end,
                                   curv, tol, near, 0.0, best)
                 if v > best:
                     best, tb = v, tv
                 c0 = c1 = np.nan
                 rising_near = False
+            # A line that ran on past this (long) ray's end saw its skyline on terrain the ray
+            # never reaches: the ray's own maximum is then most likely near its end.
+            if c0 > t_end:
+                c0 = t_end - win
+            if c1 > t_end:
+                c1 = t_end - win
             if not math.isfinite(c0):
                 c0, c1 = c1, np.nan
             elif math.isfinite(c1):
