@@ -1,4 +1,4 @@
-"""Skylines of a whole grid of positions at once: a horizon sweep that finds, exact rays that decide.
+"""Skylines of a whole grid at once: a horizon sweep that finds, exact rays that decide.
 
 :func:`skyfix.horizon.render_horizons` traces every ray of every position on its own (about 130
 pyramid steps a ray on the Sierra DEM, 67 of them exact cell maxima near the skyline), so a
@@ -21,22 +21,22 @@ value it returns stays, as the kernel's, the maximum over true points of the pos
    most likely lies.
 2. **Own ray** (per position, exact). The position's own ray is maximised exactly, cell by cell
    in closed form as the per-point kernel's level 0 does, over its near field (``t <= near_m``,
-   where lines a few metres apart see different terrain), on over the crest (to ``rising_m`` at
-   most) where the ray is still climbing at ``near_m`` (a slope whose crest lies just beyond),
-   and over ``+-window_m`` around the two lines' skyline points. Every value is thus a true
-   point of the position's own ray: the renderer never overstates the skyline (beyond the
-   kernel's own skip tolerance), and understates it only where the position's skyline lies on
-   terrain that neither bracketing line ranks highest (a knob between the lines, 100 m - 1 km
-   away, that both pass beside).
+   where lines a few metres apart see different terrain), on out to ``rising_m`` where the ray is
+   still climbing at ``near_m`` (a slope whose crest lies just beyond), and over ``+-window_m``
+   around the two lines' skyline points. Every value is thus a true point of the position's own
+   ray: the renderer never overstates the skyline (beyond the kernel's own skip tolerance), and
+   understates it only where the position's skyline lies on terrain that neither bracketing line
+   ranks highest (a knob between the lines, 100 m - 1 km away, that both pass beside).
 
 Against the per-point kernel (``benchmarks/bench_sweep.py``, every position and bin of 1 x 1 km at
-5 m on four DEMs, 2026-11-27): p99 0.0000 deg, 0.012-0.076 % of bins beyond 0.01 deg, max
-0.22-0.60 deg, 1.9-3.5x its rate. Where the time goes (one 256 x 256 task, one thread, before
-the climb stopped at its crest): the position's own rays 64 %, the lines' samples and hulls
-20 %, sorting positions into lines 10 %, the hull queries 4 %. The parameters' trade (near field
-and climb, Sierra): 60 m and no climb 3.2x the kernel with 0.048 % of bins beyond 0.01 deg (max
-1.25); 100 m and a climb to 400 m 2.0x, 0.013 % (max 0.62); 100 m and a climb to two cells past
-its crest (the defaults) 2.4x, 0.017 % (max 0.62).
+5 m on four DEMs, 2026-11-27): p99 0.0000 deg, 0.010-0.076 % of bins beyond 0.01 deg, max
+0.22-0.59 deg, 2.2-3.5x its rate. Where the time goes (one 256 x 256 task, one thread): the
+position's own rays 64 %, the lines' samples and hulls 20 %, sorting positions into lines 10 %,
+the hull queries 4 %. The parameters' trade (near field and climb, Sierra): 60 m and no climb
+3.2x the kernel with 0.048 % of bins beyond 0.01 deg (max 1.25); 100 m and a climb to 400 m
+(the defaults) 2.5x, 0.013 % (max 0.62). A climb stopped two cells past its crest was 15-29 %
+faster on 1 x 1 km but saved no CPU on the 7 x 7 km build (459 against 461 s) and let more bins
+stray (0.0125 against 0.0091 % beyond one step): not taken.
 ``max_distance_m`` is not supported (a hull cannot forget terrain behind the limit); callers use
 the per-point kernel then.
 """
@@ -56,11 +56,8 @@ from .planets import resolve_planet
 
 #: [m] every position's own ray is traced exactly out to this distance
 NEAR_M = 100.0
-#: [m] how far a ray still rising at ``NEAR_M`` is traced exactly, at most
+#: [m] how far a ray still rising at ``NEAR_M`` is traced exactly
 RISING_M = 400.0
-#: cells the climb past ``NEAR_M`` walks beyond its first crest (0-4 measured on three DEMs:
-#: 2 is as accurate as tracing on to ``RISING_M``, within 0.004 % of bins, and 15-29 % faster)
-PAST_CREST_CELLS = 2
 #: [m] least half-width of the exact window around each bracketing line's skyline point (it is
 #: one DEM cell where cells are larger: a line's crest sample and the tangent's maximum can lie
 #: most of a cell apart on a broad crest)
@@ -85,7 +82,7 @@ def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows:
     window_m : [m] half-width of the exact trace around each line's skyline point (default: one
         DEM cell, at least :data:`WINDOW_M`)
     rising_m : [m] a ray whose near-field maximum is at ``near_m`` (still rising) is traced
-        exactly on over its crest (:data:`PAST_CREST_CELLS` cells past it), to this distance at most
+        exactly out to this distance
 
     Rays run to the DEM edge (no maximum distance). Returns a :class:`HorizonBatch` as
     :func:`~skyfix.horizon.render_horizons` does, with ``skyline_distance_m``. Memory: three float32
@@ -231,18 +228,16 @@ def _tangent_vertex(hs, hw, top, qs, qw):
 
 
 @njit(cache=True, nogil=True)
-def _exact_span(z, u0, v0, us, vs, zc, curv, lo, hi, past_crest=-1):
+def _exact_span(z, u0, v0, us, vs, zc, curv, lo, hi):
     """The ray's exact maximum tangent over [lo, hi] [m] and where it is: every cell the span
     crosses maximised in closed form (:func:`~skyfix.horizon.cell_max`, the per-point kernel's
     level 0), without the pyramid (a span of a few cells gains nothing from skipping).
-    ``past_crest`` >= 0: stop that many cells after the first whose maximum is not at its far
-    end (the climb has crested). (-inf, 0) over nodata only."""
+    (-inf, 0) over nodata only."""
     ny, nx = z.shape
     best = -np.inf
     tb = 0.0
     t = lo
-    left = -1  # cells still to walk once crested
-    while t < hi and left != 0:
+    while t < hi:
         # the cell the ray is entering at t (nudged along the ray, as pyramid_block does)
         u = u0 + us * t + (1e-9 if us > 0.0 else (-1e-9 if us < 0.0 else 0.0))
         v = v0 + vs * t + (1e-9 if vs > 0.0 else (-1e-9 if vs < 0.0 else 0.0))
@@ -263,10 +258,6 @@ def _exact_span(z, u0, v0, us, vs, zc, curv, lo, hi, past_crest=-1):
         if f > best:
             best = f
             tb = tf
-        if left > 0:
-            left -= 1
-        elif left < 0 <= past_crest and tf < te:
-            left = past_crest
         t = te
     return best, tb
 
@@ -439,10 +430,10 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
                         best, tb = v, tv
             if rising_near and t_end > near:
                 # Still climbing at the near field's end (a slope whose crest lies beyond, where
-                # lines a few metres to the side see another slope): exact on over the crest,
-                # two cells past it, or to ``rising``.
-                v, tv = _exact_span(z, u0, v0, us, vs, zc[k], curv, near, min(rising, t_end),
-                                    PAST_CREST_CELLS)
+                # lines a few metres to the side see another slope): exact on to ``rising``, where
+                # the pyramid skips what cannot beat the skyline found so far.
+                v, tv = trace_ray(z, pdata, poffs, prows, pcols, u0, v0, us, vs, zc[k],
+                                  min(rising, t_end), curv, tol, near, 0.0, best)
                 if v > best:
                     best, tb = v, tv
             out_el[b, k] = math.degrees(math.atan(best)) if best > -np.inf else np.nan
