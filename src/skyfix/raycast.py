@@ -35,7 +35,7 @@ import numpy as np
 from .camera import Camera, r_world_body, r_world_cam
 from .dem import Dem
 from .formats import PanoramaSpec
-from .horizon import T_MIN_M, packed_pyramid, pyramid_block
+from .horizon import T_MIN_M, edge_distance, packed_pyramid, pyramid_block
 from .planets import get_planet
 
 #: projection codes of the kernels
@@ -321,20 +321,6 @@ def _first_hit(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, tan_el, t_end,
 
 
 @numba.njit(cache=True, nogil=True)
-def _edge_distance(u0, v0, du, dv, nx, ny):
-    t_edge = np.inf
-    if du > 1e-15:
-        t_edge = min(t_edge, (nx - 1 - u0) / du)
-    elif du < -1e-15:
-        t_edge = min(t_edge, -u0 / du)
-    if dv > 1e-15:
-        t_edge = min(t_edge, (ny - 1 - v0) / dv)
-    elif dv < -1e-15:
-        t_edge = min(t_edge, -v0 / dv)
-    return t_edge * (1 - 1e-9)
-
-
-@numba.njit(cache=True, nogil=True)
 def _terrain_t(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, o, d0, d1, d2, max_d, curv, t_min):
     ny, nx = z.shape
     h = math.sqrt(d0 * d0 + d1 * d1)
@@ -344,7 +330,10 @@ def _terrain_t(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, o, d0, d1, d2, max
     v0 = (y0 - o[1]) / dy
     du = d0 / h / dx
     dv = -d1 / h / dy
-    t_end = min(_edge_distance(u0, v0, du, dv, nx, ny), max_d)
+    # a component within 1e-15 of zero runs along the grid line (no exit on that axis)
+    t_edge = edge_distance(u0, v0, du if abs(du) > 1e-15 else 0.0, dv if abs(dv) > 1e-15 else 0.0,
+                           nx, ny)
+    t_end = min(t_edge * (1 - 1e-9), max_d)
     return _first_hit(z, pdata, poffs, prows, pcols, u0, v0, du, dv, o[2], d2 / h, t_end, curv, t_min)
 
 

@@ -50,7 +50,7 @@ import numpy as np
 from .dem import Dem
 from .errors import ParameterError
 from .horizon import (T_MIN_M, HorizonBatch, azimuth_centres, bilinear, cell_max,
-                      edge_distance, packed_pyramid, trace_ray)
+                      edge_distance, packed_pyramid, pyramid_block, trace_ray)
 from .jit import njit, prange
 from .planets import resolve_planet
 
@@ -238,22 +238,7 @@ def _exact_span(z, u0, v0, us, vs, zc, curv, lo, hi):
     tb = 0.0
     t = lo
     while t < hi:
-        # the cell the ray is entering at t (nudged along the ray, as pyramid_block does)
-        u = u0 + us * t + (1e-9 if us > 0.0 else (-1e-9 if us < 0.0 else 0.0))
-        v = v0 + vs * t + (1e-9 if vs > 0.0 else (-1e-9 if vs < 0.0 else 0.0))
-        j = min(max(int(math.floor(u)), 0), nx - 2)
-        i = min(max(int(math.floor(v)), 0), ny - 2)
-        te = hi
-        if us > 0.0:
-            te = min(te, (j + 1 - u0) / us)
-        elif us < 0.0:
-            te = min(te, (j - u0) / us)
-        if vs > 0.0:
-            te = min(te, (i + 1 - v0) / vs)
-        elif vs < 0.0:
-            te = min(te, (i - v0) / vs)
-        if te <= t:
-            te = t + 1e-6
+        i, j, _, _, te = pyramid_block(u0, v0, us, vs, t, 0, nx, ny, hi)  # level 0: the cell
         f, tf = cell_max(z, i, j, u0, v0, us, vs, zc, curv, t, te)
         if f > best:
             best = f
@@ -279,10 +264,6 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
     ny, nx = z.shape
     n = xs.shape[0]
     nb = saz.shape[0]
-    # Along and across from the DEM's corner, lines on a lattice fixed to it: a position's
-    # candidates, hence its skyline, do not depend on which other positions share the call.
-    xm = x0
-    ym = y0
     zc = np.empty(n)
     for k in range(n):
         g = bilinear(z, (xs[k] - x0) / dx, (y0 - ys[k]) / dy)
@@ -296,9 +277,11 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
             sa = 0.0
         if abs(ca) < 1e-12:
             ca = 0.0
-        # along (a) the ray, across (o) it: d = (sa, ca), n = (ca, -sa) in (east, north)
-        a = (xs - xm) * sa + (ys - ym) * ca
-        o = (xs - xm) * ca - (ys - ym) * sa
+        # Along (a) the ray and across (o) it, d = (sa, ca), n = (ca, -sa) in (east, north), from
+        # the DEM's corner, with lines on a lattice fixed to it: a position's candidates, hence
+        # its skyline, do not depend on which other positions share the call.
+        a = (xs - x0) * sa + (ys - y0) * ca
+        o = (xs - x0) * ca - (ys - y0) * sa
         m_glob = np.floor(o / ls).astype(np.int64)
         m_lo = m_glob.min()
         m_of = m_glob - m_lo
@@ -321,7 +304,7 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
                 order[start[m]:start[m + 1]] = seg[np.argsort(-a[seg], kind="mergesort")]
         qa = a[order]
         qw = zc[order] - curv * qa * qa
-        cand = np.full((n, 2), np.nan)
+        cand = np.full((n, 2), np.nan)  # per position (grid order): the two lines' answers
         buf_s = np.empty(cap)
         buf_w = np.empty(cap)
         hs = np.empty(cap)
@@ -348,8 +331,8 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
             if nq == 0:
                 continue
             om = (m + m_lo) * ls
-            lx = xm + om * ca
-            ly = ym - om * sa
+            lx = x0 + om * ca
+            ly = y0 - om * sa
             uc = (lx - x0) / dx
             vc = (y0 - ly) / dy
             s_in, s_out = _line_span(uc, vc, us, vs, nx, ny)
@@ -376,12 +359,9 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
                 if top < 0:
                     continue
                 v = _tangent_vertex(hs, hw, top, qa[r], qw[r])
-                cand[r, qslot[j]] = hs[v] - qa[r]
+                cand[order[r], qslot[j]] = hs[v] - qa[r]
         # Each position's own ray, in grid order (the outputs are written in sequence): the exact
         # near field, and exact windows around the candidates.
-        candk = np.empty((n, 2))
-        for r in range(n):
-            candk[order[r]] = cand[r]
         for k in range(n):
             u0 = (xs[k] - x0) / dx
             v0 = (y0 - ys[k]) / dy
@@ -393,8 +373,8 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
                 continue
             best, tb = _exact_span(z, u0, v0, us, vs, zc[k], curv, t_min, min(near, t_end))
             rising_near = tb >= near * (1.0 - 1e-6)
-            c0 = candk[k, 0]
-            c1 = candk[k, 1]
+            c0 = cand[k, 0]
+            c1 = cand[k, 1]
             if t_end > near and (not (math.isfinite(c0) or math.isfinite(c1))
                                  or (t_end <= rising and (c0 > t_end or c1 > t_end))):
                 # Neither line reached the DEM (a position at its edge), or one ran on past this
