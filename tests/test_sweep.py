@@ -127,3 +127,17 @@ def test_grids_at_the_dem_edge_agree_with_the_kernel(corner):
     assert np.nanmax(d) < 0.0015
     assert np.nanmean(np.abs(d) > 0.01) < 0.002
     assert np.nanmax(np.abs(d)) < 0.5
+
+
+@pytest.mark.parametrize("seed, rows, cols", [(0, 1, 64), (1, 64, 1)])
+def test_a_grid_along_the_dem_edge_renders(seed, rows, cols):
+    """Lines entering the DEM right beside positions on its edge start on a grid line, where a
+    crossing can round onto the start (a zero-length piece: this raised ZeroDivisionError)."""
+    dem = fractal_dem(128, 20.0, relief_m=800.0, seed=seed)
+    xmin, ymin, xmax, ymax = dem.bounds
+    hb = render_grid(dem, xmin, ymax, 5.0, rows, cols)
+    ref = render_horizons(dem, hb.x, hb.y)
+    np.testing.assert_array_equal(np.isnan(hb.elevation_deg), np.isnan(ref.elevation_deg))
+    d = hb.elevation_deg.astype(np.float64) - ref.elevation_deg
+    assert np.nanmax(d) < 0.0015
+    assert np.nanmean(np.abs(d) > 0.01) < 0.002

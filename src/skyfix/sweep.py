@@ -179,6 +179,8 @@ def _line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w):
         out_w[0] = h0 - curv * s * s
         n = 1
     uv = us * vs
+    # A line that enters the DEM beside the grid starts on the hull's edge, a grid line: rounding
+    # can put the "next" crossing on the start itself, a piece of length 0 (no crest to look for).
     while s < s_b and n < cap - 2:
         nxt = min(ku, kv, s_b)
         if ku <= nxt:
@@ -186,7 +188,7 @@ def _line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w):
         if kv <= nxt:
             kv += step_v
         h1 = bilinear(z, uc + us * nxt, vc + vs * nxt)
-        if uv != 0.0 and math.isfinite(h0) and math.isfinite(h1):
+        if uv != 0.0 and nxt > s and math.isfinite(h0) and math.isfinite(h1):
             mid = 0.5 * (s + nxt)
             j = min(max(int(math.floor(uc + us * mid)), 0), nx - 2)
             i = min(max(int(math.floor(vc + vs * mid)), 0), ny - 2)
