@@ -234,17 +234,48 @@ def _exact_span(z, u0, v0, us, vs, zc, curv, lo, hi):
     """The ray's exact maximum tangent over [lo, hi] [m] and where it is: every cell the span
     crosses maximised in closed form (:func:`~skyfix.horizon.cell_max`, the per-point kernel's
     level 0), without the pyramid (a span of a few cells gains nothing from skipping).
-    (-inf, 0) over nodata only."""
+    (-inf, 0) over nodata only.
+
+    The cells are walked as a line is rasterised: the first is found as
+    :func:`~skyfix.horizon.pyramid_block` finds it, each next one by stepping a column or a row at
+    the nearer grid-line crossing, which is what the near field, a few cells a ray, mostly costs
+    (a quarter less time here than locating every cell afresh)."""
     ny, nx = z.shape
     best = -np.inf
     tb = 0.0
+    j, i = -1, -1
+    if hi > lo:
+        i, j, _, _, _ = pyramid_block(u0, v0, us, vs, lo, 0, nx, ny, hi)
+    # next crossing of a column (u) or row (v) line: at (j + 1 - u0) / us going east, and so on
+    ju = 1 if us > 0.0 else 0
+    iv = 1 if vs > 0.0 else 0
+    ru = 1.0 / us if us != 0.0 else 0.0
+    rv = 1.0 / vs if vs != 0.0 else 0.0
+    tu = (j + ju - u0) * ru if us != 0.0 else np.inf
+    tv = (i + iv - v0) * rv if vs != 0.0 else np.inf
     t = lo
     while t < hi:
-        i, j, _, _, te = pyramid_block(u0, v0, us, vs, t, 0, nx, ny, hi)  # level 0: the cell
+        te = min(tu, tv, hi)
+        if te <= t:  # rounding at a crossing: move on as pyramid_block does
+            te = t + 1e-6
         f, tf = cell_max(z, i, j, u0, v0, us, vs, zc, curv, t, te)
         if f > best:
             best = f
             tb = tf
+        if tu <= te:
+            j += 1 if us > 0.0 else -1
+            if 0 <= j <= nx - 2:
+                tu = max((j + ju - u0) * ru, te + 1e-6)
+            else:  # off the DEM's cells: only at its edge, which ends the span
+                j = min(max(j, 0), nx - 2)
+                tu = np.inf
+        if tv <= te:
+            i += 1 if vs > 0.0 else -1
+            if 0 <= i <= ny - 2:
+                tv = max((i + iv - v0) * rv, te + 1e-6)
+            else:
+                i = min(max(i, 0), ny - 2)
+                tv = np.inf
         t = te
     return best, tb
 
