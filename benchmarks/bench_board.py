@@ -161,7 +161,8 @@ def main(argv=None):
           f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}", flush=True)
     skyfix = [args.board_python, "-m", "skyfix.cli.main", "-q"]
     env = dict(os.environ)
-    if Path(args.board_python).resolve() != Path(sys.executable).resolve():
+    # compared unresolved: every venv's python is a link to the same interpreter
+    if os.path.abspath(args.board_python) != os.path.abspath(sys.executable):
         # another install's Python measures that install's skyfix, not the sources this runs from
         env.pop("PYTHONPATH", None)
     aot = subprocess.run([args.board_python, "-c", "from skyfix import jit; print(jit.ahead_of_time())"],

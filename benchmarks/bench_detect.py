@@ -181,7 +181,8 @@ def peak_rss_4mp(img, out=sys.stdout, method="net", python=None):
                 "print(hwm())")
         python = python or sys.executable
         env = dict(os.environ)
-        if Path(python).resolve() != Path(sys.executable).resolve():
+        # compared unresolved: every venv's python is a link to the same interpreter
+        if os.path.abspath(python) != os.path.abspath(sys.executable):
             env.pop("PYTHONPATH", None)  # the other install's own skyfix, not this checkout's
         # one warm-up call first: the figure is a detection's, not numba's first compilation
         # (a JIT install compiles once, then reads its cache)

@@ -17,12 +17,15 @@ machine are noisy; CPU seconds are steadier than wall seconds there.
 
     PYTHONPATH=src python benchmarks/bench_locate.py [--db DB] [--repeat 3] [--preset fast]
         [--heading 123] [--noise 0.2] [--coverage 360] [--pitch 0 --roll 0] [--profile P.json]
-        [--load [N]] [--ab-index]
+        [--load [N]] [--ab-index] [--board-python DIR/bin/python]
 
 With ``--load``, the locate runs are repeated while N processes (one per core by default) spin,
 started and stopped by the benchmark itself: the search must stay within 2x of its idle time.
 With ``--ab-index`` every run is repeated on a twin of the store without its coarse index
-(hard-linked, removed afterwards), the two alternated, and the ratios printed.
+(hard-linked, removed afterwards), the two alternated, and the ratios printed. With
+``--board-python`` the runs use a board install's Python and its own skyfix (the kernels compiled
+ahead of time, numba never imported), as on the rover; this script itself runs in the ground
+install (it renders the query profile).
 """
 
 from __future__ import annotations
@@ -62,7 +65,15 @@ print(json.dumps({"search_s": time.perf_counter() - t0, "search_cpu_s": time.pro
 """
 
 
+#: the interpreter of the measured runs (``--board-python``: another install's)
+PYTHON = [sys.executable]
+
+
 def _env():
+    # compared unresolved: every venv's python is a link to the same interpreter
+    if os.path.abspath(PYTHON[0]) != os.path.abspath(sys.executable):
+        # another install's Python measures that install's skyfix, not the sources this runs from
+        return {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     return dict(os.environ, PYTHONPATH=str(ROOT / "src"))
 
 
@@ -81,7 +92,7 @@ def make_profile(db_path, out, x, y, args):
 
 
 def run_locate(db, profile, preset, fix_path):
-    cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "skyfix.cli.main", "locate", "--profile",
+    cmd = ["/usr/bin/time", "-v", PYTHON[0], "-m", "skyfix.cli.main", "locate", "--profile",
            str(profile), "--db", str(db), "--preset", preset, "-o", str(fix_path), "--overwrite"]
     out = subprocess.run(cmd, capture_output=True, text=True, env=_env())
     if out.returncode:
@@ -94,7 +105,7 @@ def run_locate(db, profile, preset, fix_path):
 
 
 def run_match(db, profile, preset):
-    out = subprocess.run([sys.executable, "-c", MATCH_CHILD, str(db), str(profile), preset],
+    out = subprocess.run([PYTHON[0], "-c", MATCH_CHILD, str(db), str(profile), preset],
                          capture_output=True, text=True, env=_env())
     if out.returncode:
         raise SystemExit(f"matcher failed:\n{out.stderr[-3000:]}")
@@ -123,7 +134,11 @@ def main():
                     help="also run every measurement on a twin of the store without its coarse "
                          "index (hard links, removed afterwards), alternated run by run, and print "
                          "the ratios")
+    ap.add_argument("--board-python", default=sys.executable,
+                    help="run skyfix (locate and the matcher) with this Python: a board install "
+                         "(scripts/board_install.sh DIR [--no-jit]), as a rover carries it")
     args = ap.parse_args()
+    PYTHON[0] = args.board_python
 
     from skyfix.database import open_database
 
@@ -136,7 +151,7 @@ def main():
         tx, ty = args.truth_x, args.truth_y
     tr, tc = (int(v) for v in db.index_of(tx, ty)) if tx is not None else (None, None)
     print(f"store {args.db}: {nx} x {ny} = {nx * ny:,} positions x {db.azimuth_bins} bins, "
-          f"{db.n_blocks} blocks; preset {args.preset}")
+          f"{db.n_blocks} blocks; preset {args.preset}; skyfix run by {PYTHON[0]}")
     stores = {"with index": args.db}
     twin = None
     if args.ab_index:
