@@ -126,12 +126,10 @@ def prefetch(blocks, depth: int = 2):
 
 @contextmanager
 def blas_threads(n: int):
-    """Limit BLAS threads (the reader thread takes a core; oversubscription costs more than it gives)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # optional: without it BLAS uses its default
-        yield
-        return
+    """Limit BLAS threads (the reader thread takes a core; oversubscription costs more than it
+    gives: BLAS threads spin while they wait, and under load they wait for cores)."""
+    from threadpoolctl import threadpool_limits  # here: only the search needs it
+
     with threadpool_limits(limits=n, user_api="blas"):
         yield
 
