@@ -158,11 +158,13 @@ def bilinear(z, u, v):
 
 
 @njit(cache=True, nogil=True)
-def pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end):
+def pyramid_block(u0, v0, du, dv, ru, rv, t, level, nx, ny, t_end):
     """Where a ray stands in the max pyramid: the level-0 cell (i, j) at distance ``t`` [m], its
     block (bi, bj) at ``level``, and the distance [m] at which the ray leaves that block (> t).
 
-    u = u0 + du t, v = v0 + dv t in index space. Shared by the horizon renderer and the ray caster.
+    u = u0 + du t, v = v0 + dv t in index space; ``ru``, ``rv`` = 1 / du, 1 / dv (0 where those
+    are 0), computed once a ray: a walk calls this about 130 times a ray, and two divisions a call
+    were 7 % of the kernel's time. Shared by the horizon renderer and the ray caster.
     """
     # Nudge along the ray before flooring: a point exactly on a grid line (a position on a whole
     # cell coordinate, a ray along a row) must land in the block it is entering, or the exit
@@ -176,15 +178,15 @@ def pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end):
     size = 1 << level
     # du, dv are exactly 0 for rays along grid lines (see _render_batch).
     if du > 0.0:
-        tu = ((bj + 1) * size - u0) / du
+        tu = ((bj + 1) * size - u0) * ru
     elif du < 0.0:
-        tu = (bj * size - u0) / du
+        tu = (bj * size - u0) * ru
     else:
         tu = np.inf
     if dv > 0.0:
-        tv = ((bi + 1) * size - v0) / dv
+        tv = ((bi + 1) * size - v0) * rv
     elif dv < 0.0:
-        tv = (bi * size - v0) / dv
+        tv = (bi * size - v0) * rv
     else:
         tv = np.inf
     t_exit = min(tu, tv, t_end)
@@ -271,14 +273,17 @@ def trace_ray(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, t_end, curv, to
     t = t_min
     level = 0
     eps_t = 1e-6
+    ru = 1.0 / du if du != 0.0 else 0.0
+    rv = 1.0 / dv if dv != 0.0 else 0.0
     while t < t_end:
-        i, j, bi, bj, t_exit = pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end)
+        i, j, bi, bj, t_exit = pyramid_block(u0, v0, du, dv, ru, rv, t, level, nx, ny, t_end)
         hmax = pdata[poffs[level] + bi * pcols[level] + bj]
         if hmax == -np.inf:
             ub = -np.inf
         else:
             a = hmax - zc
-            ub = max(a / t, a / t_exit) - curv * t
+            # the larger of a / t and a / t_exit (t < t_exit): one division, not two
+            ub = (a / t if a >= 0.0 else a / t_exit) - curv * t
         if ub <= best + tol:
             t = t_exit + eps_t * (1.0 + t_exit * 1e-9)
             if level + 1 < nlev:

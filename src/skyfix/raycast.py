@@ -283,14 +283,16 @@ def _first_hit(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, tan_el, t_end,
     t = t_min
     level = 0
     eps_t = 1e-6
+    ru = 1.0 / du if du != 0.0 else 0.0
+    rv = 1.0 / dv if dv != 0.0 else 0.0
     while t < t_end:
-        i, j, bi, bj, t_exit = pyramid_block(u0, v0, du, dv, t, level, nx, ny, t_end)
+        i, j, bi, bj, t_exit = pyramid_block(u0, v0, du, dv, ru, rv, t, level, nx, ny, t_end)
         hmax = pdata[poffs[level] + bi * pcols[level] + bj]
         if hmax == -np.inf:
             ub = -np.inf
         else:
             a = hmax - zc
-            ub = max(a / t, a / t_exit) - curv * t
+            ub = (a / t if a >= 0.0 else a / t_exit) - curv * t  # the larger of the two
         if ub < tan_el:
             t = t_exit + eps_t * (1.0 + t_exit * 1e-9)
             if level + 1 < nlev:

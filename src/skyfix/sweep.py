@@ -244,14 +244,14 @@ def _exact_span(z, u0, v0, us, vs, zc, curv, lo, hi):
     ny, nx = z.shape
     best = -np.inf
     tb = 0.0
+    ru = 1.0 / us if us != 0.0 else 0.0
+    rv = 1.0 / vs if vs != 0.0 else 0.0
     j, i = -1, -1
     if hi > lo:
-        i, j, _, _, _ = pyramid_block(u0, v0, us, vs, lo, 0, nx, ny, hi)
+        i, j, _, _, _ = pyramid_block(u0, v0, us, vs, ru, rv, lo, 0, nx, ny, hi)
     # next crossing of a column (u) or row (v) line: at (j + 1 - u0) / us going east, and so on
     ju = 1 if us > 0.0 else 0
     iv = 1 if vs > 0.0 else 0
-    ru = 1.0 / us if us != 0.0 else 0.0
-    rv = 1.0 / vs if vs != 0.0 else 0.0
     tu = (j + ju - u0) * ru if us != 0.0 else np.inf
     tv = (i + iv - v0) * rv if vs != 0.0 else np.inf
     t = lo
