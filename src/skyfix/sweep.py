@@ -30,7 +30,7 @@ value it returns stays, as the kernel's, the maximum over true points of the pos
 
 Against the per-point kernel (``benchmarks/bench_sweep.py``, every position and bin of 1 x 1 km at
 5 m on four DEMs, 2026-11-27): p99 0.0000 deg, 0.010-0.076 % of bins beyond 0.01 deg, max
-0.22-0.59 deg, 2.3-4.0x its rate. Where the time goes (one 256 x 256 task, one thread, since
+0.22-0.59 deg, 2.2-3.7x its rate (the kernel itself 13 % faster since its walk divides less). Where the time goes (one 256 x 256 task, one thread, since
 the exact spans walk from cell to cell): the position's own rays about 60 % (its near field
 alone 40 %), the lines' samples and hulls 25 %, setting up each azimuth (positions sorted into
 lines, outputs transposed) 10 %, the hull queries 5 %. The parameters' trade (near field and climb, Sierra): 60 m and no climb
