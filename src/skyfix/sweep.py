@@ -30,14 +30,15 @@ value it returns stays, as the kernel's, the maximum over true points of the pos
 
 Against the per-point kernel (``benchmarks/bench_sweep.py``, every position and bin of 1 x 1 km at
 5 m on four DEMs, 2026-11-27): p99 0.0000 deg, 0.010-0.076 % of bins beyond 0.01 deg, max
-0.22-0.59 deg, 2.2-3.7x its rate (the kernel itself 13 % faster since its walk divides less). Where the time goes (one 256 x 256 task, one thread, since
-the exact spans walk from cell to cell): the position's own rays about 60 % (its near field
-alone 40 %), the lines' samples and hulls 25 %, setting up each azimuth (positions sorted into
-lines, outputs transposed) 10 %, the hull queries 5 %. The parameters' trade (near field and climb, Sierra): 60 m and no climb
-3.2x the kernel with 0.048 % of bins beyond 0.01 deg (max 1.25); 100 m and a climb to 400 m
-(the defaults) 2.5x, 0.013 % (max 0.62). A climb stopped two cells past its crest was 15-29 %
-faster on 1 x 1 km but saved no CPU on the 7 x 7 km build (459 against 461 s) and let more bins
-stray (0.0125 against 0.0091 % beyond one step): not taken.
+0.22-0.59 deg, 2.2-3.7x its rate (the kernel itself 13 % faster since its walk divides less).
+Where the time goes (one 256 x 256 task, one thread, since the exact spans walk from cell to
+cell): the position's own rays about 60 % (its near field alone 40 %), the lines' samples and
+hulls 25 %, setting up each azimuth (positions sorted into lines, outputs transposed) 10 %, the
+hull queries 5 %. The parameters' trade (near field and climb, Sierra): 60 m and no climb 3.2x the
+kernel with 0.048 % of bins beyond 0.01 deg (max 1.25); 100 m and a climb to 400 m (the defaults)
+2.5x, 0.013 % (max 0.62). A climb stopped two cells past its crest was 15-29 % faster on 1 x 1 km
+but saved no CPU on the 7 x 7 km build (459 against 461 s) and let more bins stray (0.0125 against
+0.0091 % beyond one step): not taken.
 ``max_distance_m`` is not supported (a hull cannot forget terrain behind the limit); callers use
 the per-point kernel then.
 """
