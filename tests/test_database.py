@@ -24,6 +24,7 @@ from skyfix.database import (MARKER_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG, Grid,
                              marker_name, open_database, quantise, verify_database)
 from skyfix.database.chunks import chunk_reader
 from skyfix.database.layout import coarse_of
+from skyfix.database.tasks import tasks_of
 from skyfix.dem import Dem, file_checksum, load_dem, write_dem
 from skyfix.errors import DatabaseError, OutputExistsError, OutsideDemError, ParameterError
 from skyfix.horizon import render_horizons
@@ -324,6 +325,31 @@ def test_sweep_build_resumes_to_an_identical_store_and_keeps_its_renderer(dem_pa
         _build(dem_path, out)
     r = _build(dem_path, out, renderer="sweep")
     assert r.built == 2 and r.resumed_from == 7
+    assert _files(out) == _files(sweep_db)
+
+
+def test_sweep_groups_shrink_to_keep_every_slot_busy():
+    """Groups of up to 4 x 4 blocks, halved while fewer than two tasks a slot remain; one process
+    (one slot) keeps the largest."""
+    grid = [(r, c) for r in range(4) for c in range(4)]  # a 1 x 1 km build at 5 m
+    assert [len(t) for t in tasks_of(grid, "sweep", 1)] == [16]
+    assert sorted(len(t) for t in tasks_of(grid, "sweep", 2)) == [4, 4, 4, 4]
+    assert sorted(len(t) for t in tasks_of(grid, "sweep", 8)) == [1] * 16
+    big = [(r, c) for r in range(22) for c in range(22)]  # 7 x 7 km
+    assert max(len(t) for t in tasks_of(big, "sweep", 2)) == 16
+    assert sorted(b for t in tasks_of(big, "sweep", 2) for b in t) == big
+    assert tasks_of(grid, "kernel", 2) == [[b] for b in grid]
+
+
+def test_sweep_store_is_the_same_however_its_blocks_are_grouped(dem_path, sweep_db, tmp_path):
+    from concurrent.futures import ThreadPoolExecutor
+
+    out = tmp_path / "two_slots.zarr"
+    # A given executor counts as two slots: 3 x 3 blocks go as four groups, not one. One thread
+    # runs them (numba's workqueue layer, where it is the one, takes no concurrent launches).
+    with ThreadPoolExecutor(1) as ex:
+        r = _build(dem_path, out, renderer="sweep", executor=ex)
+    assert r.built == 9
     assert _files(out) == _files(sweep_db)
 
 

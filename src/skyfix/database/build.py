@@ -165,8 +165,9 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
         and anything else is refused)
     block : [positions] block side (one chunk per block; one task per block with the kernel)
     renderer : ``kernel`` (every ray traced on its own: :func:`skyfix.horizon.render_horizons`)
-        or ``sweep`` (:func:`skyfix.sweep.render_grid` over groups of :data:`SWEEP_GROUP` x
-        :data:`SWEEP_GROUP` blocks, one task each: 2-3x faster, its skylines never above the
+        or ``sweep`` (:func:`skyfix.sweep.render_grid` over groups of up to :data:`SWEEP_GROUP`
+        x :data:`SWEEP_GROUP` blocks, smaller where that leaves the workers too few tasks, one
+        task each: 1.7-2.5x faster, 2-2.5x less CPU from 2 x 2 km up, its skylines never above the
         kernel's and below them by more than 0.01 deg in about 0.01-0.1 % of bins; one DEM, rays
         to its edge). A build parameter: a resume keeps it
     """
@@ -359,7 +360,7 @@ def _run(ex: Executor, slots: int, spec: BuildSpec, todo, n_blocks: int, n_done:
     from tqdm import tqdm
 
     pending: set = set()
-    queue = tasks_of(todo, spec.renderer)
+    queue = tasks_of(todo, spec.renderer, slots)
     positions = 0
     t0 = time.perf_counter()
     window = max(2, 2 * slots)

@@ -158,15 +158,24 @@ def build_blocks(spec: BuildSpec, blocks) -> tuple[int, int]:
     return len(rendered), n
 
 
-def tasks_of(todo, renderer: str) -> list[list[tuple[int, int]]]:
+def tasks_of(todo, renderer: str, slots: int = 1) -> list[list[tuple[int, int]]]:
     """The blocks to build, as tasks: one block each for the kernel; for the sweep, the blocks
-    of each :data:`SWEEP_GROUP`-square group together (a resumed group renders only its blocks
-    still missing, as one rectangle over them)."""
+    of each square group together (a resumed group renders only its blocks still missing, as one
+    rectangle over them).
+
+    A group is :data:`SWEEP_GROUP` blocks on a side, halved while that leaves fewer than two
+    tasks per slot (``slots`` tasks run at once): a 1 x 1 km build at 5 m is one group of 4 x 4,
+    which kept one of two workers idle (9.5 s instead of 12.0 s with groups of 2 x 2, for 18 %
+    more CPU). The grouping never changes a value: the sweep's lines lie on a lattice fixed to
+    the DEM."""
     if renderer != "sweep":
         return [[b] for b in todo]
+    side = SWEEP_GROUP
+    while side > 1 and slots > 1 and len({(br // side, bc // side) for br, bc in todo}) < 2 * slots:
+        side //= 2
     groups: dict = {}
     for br, bc in todo:
-        groups.setdefault((br // SWEEP_GROUP, bc // SWEEP_GROUP), []).append((br, bc))
+        groups.setdefault((br // side, bc // side), []).append((br, bc))
     return list(groups.values())
 
 
