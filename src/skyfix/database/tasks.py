@@ -36,8 +36,9 @@ class BuildSpec:
 
 #: the skyline renderers a build can use (:func:`build_database`)
 RENDERERS = ("kernel", "sweep")
-#: blocks per side of one sweep task: its lines serve this many blocks' positions at once (4 x 4
-#: blocks of 64: 65,536 positions, about 0.6 GB of working arrays)
+#: blocks per side of one sweep task at most: its lines serve this many blocks' positions at once
+#: (4 x 4 blocks of 64: 65,536 positions, about 0.6 GB of working arrays); :func:`tasks_of` halves
+#: it where the build would leave workers without tasks
 SWEEP_GROUP = 4
 
 
@@ -89,7 +90,7 @@ def render_block(dem, spec: BuildSpec, br: int, bc: int) -> dict:
 def render_group(dem, spec: BuildSpec, blocks) -> dict:
     """Render blocks with the grid sweep (:func:`skyfix.sweep.render_grid`) as one rectangle, so
     that its lines serve them all: {(br, bc): arrays as :func:`render_block` gives them}. The
-    rectangle spans the blocks given (a group of :data:`SWEEP_GROUP` x :data:`SWEEP_GROUP`)."""
+    rectangle spans the blocks given (a group of :func:`tasks_of`)."""
     from ..sweep import render_grid
 
     g = spec.grid
