@@ -43,7 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-from skyfix.detect import DpOptions, combine_scores, detect_skyline, score_skyline, scored_columns
+from skyfix.detect import (PRESETS, DpOptions, NetOptions, combine_scores, detect_skyline, score_skyline,
+                           scored_columns)
 from skyfix.formats import read_skyline_json
 
 #: ../shared/data beside the repository
@@ -293,7 +294,9 @@ def main(argv=None):
                     help="labelled image folder (repeatable; default the Mars dev set)")
     ap.add_argument("--only", default="", help="comma-separated image names")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a detector option (dp and fuse only), e.g. --set w_region=0.1")
+                    help="override a detector option, e.g. --set w_region=0.1 (dp, fuse) or "
+                         "--set net_pixels=150000 (net, also with --cv-net); each method takes "
+                         "the keys its options have")
     ap.add_argument("--cv", action="store_true",
                     help="also a table cross-validated by site (retrains the sky model per fold)")
     ap.add_argument("--cv-folds", type=int, default=5, help="folds for --cv (default 5)")
@@ -316,11 +319,17 @@ def main(argv=None):
     options = {}
     for kv in args.set:
         k, _, v = kv.partition("=")
-        if not hasattr(DpOptions(), k):
-            raise SystemExit(f"--set {kv}: no dp option {k!r} (see skyfix.detect.DpOptions)")
-        kind = type(getattr(DpOptions(), k))
+        known = [o for o in (DpOptions(), NetOptions()) if hasattr(o, k)]
+        if not known:
+            raise SystemExit(f"--set {kv}: no dp or net option {k!r} (see skyfix.detect.DpOptions "
+                             f"and NetOptions)")
+        kind = type(getattr(known[0], k))
         # bool("False") is True: booleans are spelt out
         options[k] = v.lower() in ("1", "true", "yes") if kind is bool else kind(v)
+
+    def options_of(method):
+        """The --set options that ``method``'s options have (dp and fuse share DpOptions)."""
+        return {k: v for k, v in options.items() if hasattr(PRESETS[method], k)}
     folders = [Path(d) for d in (args.data or [str(DEV)])]
     for folder in folders:
         if not folder.is_dir():
@@ -336,8 +345,8 @@ def main(argv=None):
     detect_skyline(np.full((40, 40), 128, np.uint8))
     if not args.no_all:
         for m in args.methods.split(","):
-            run_set(pairs, m, title="(shipped model)", **(options if m in ("dp", "fuse") else {}))
-            time_at_4mp(pairs, m, **(options if m in ("dp", "fuse") else {}))
+            run_set(pairs, m, title="(shipped model)", **options_of(m))
+            time_at_4mp(pairs, m, **options_of(m))
         for m in args.methods.split(","):
             peak_rss_4mp(pairs[0][1], method=m)
             if args.board_python:
@@ -363,11 +372,12 @@ def main(argv=None):
                 title = f"{f.name} (sky model cross-validated, {args.cv_folds} folds by site"
                 title += ", held-out network member)" if m == "fuse" else ")"
                 run_set([p for p in pairs if folder_of[p[0]] == f.name], m, models=models,
-                        title=title, image_options=per_image, **options)
+                        title=title, image_options=per_image, **options_of(m))
     if args.cv_net:
         from cv_net import run_cv_net
 
-        run_cv_net(pairs, Path(args.cv_net), write_calibration=args.write_calibration)
+        run_cv_net(pairs, Path(args.cv_net), write_calibration=args.write_calibration,
+                   options=options_of("net"))
     if args.sim:
         for set_dir in sorted(p for p in Path(args.sim).iterdir() if p.is_dir()):
             sims = list(sim_pairs(set_dir))
@@ -375,7 +385,7 @@ def main(argv=None):
                 sims = [(n, degrade(im, args.degrade), t) for n, im, t in sims]
             for m in args.methods.split(","):
                 run_set(sims, m, per_image=False, title=f"(simulated {set_dir.name})",
-                        **(options if m in ("dp", "fuse") else {}))
+                        **options_of(m))
     else:
         print("simulated sets: pass --sim DIR (DIR/REF, DIR/CLUT, ... written by "
               "skyfix.simulate.simulate_set)")

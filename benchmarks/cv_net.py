@@ -74,7 +74,10 @@ def _finish(rows, conf, valid, opt, f=1):
     return rows, conf
 
 
-def run_cv_net(pairs, folder: Path, *, write_calibration: str = "", out=sys.stdout):
+def run_cv_net(pairs, folder: Path, *, write_calibration: str = "", out=sys.stdout, options=None):
+    """Score ``net`` on ``pairs`` (name, image, truth), each image by the fold model of ``folder``
+    that held it out; ``options``: NetOptions fields for every run (the confidence cut and the
+    run hysteresis excepted: they are chosen here). Returns {name: (score, rows, confidence)}."""
     models = _fold_models(folder)
     missing = [n for n, _, _ in pairs if n not in models]
     if missing:
@@ -83,8 +86,8 @@ def run_cv_net(pairs, folder: Path, *, write_calibration: str = "", out=sys.stdo
     recs = []  # per image: name, fold, truth, rows, raw conf, col validity
     for name, img, truth in pairs:
         model = models[name]
-        sk = detect_skyline(img, method="net", model=model, min_confidence=0.0, min_run=0,
-                            anchor_conf=0.0)
+        sk = detect_skyline(img, method="net", model=model, **{**(options or {}), "min_confidence": 0.0,
+                                                               "min_run": 0, "anchor_conf": 0.0})
         recs.append(dict(name=name, fold=model.stem, kind=_kind(name), truth=truth,
                          rows=np.asarray(sk.rows, float), raw=np.asarray(sk.confidence, float),
                          valid=np.asarray(sk.valid, bool)))
@@ -131,8 +134,8 @@ def run_cv_net(pairs, folder: Path, *, write_calibration: str = "", out=sys.stdo
         c_raw, ok = columns(test)
         cal_cols.append((np.interp(c_raw, *cal), ok))
     print(f"-- net, cross-validated ({len(folds)} folds by sol / by photo; calibration and "
-          f"min_confidence from the other folds: {', '.join(f'{k} {v}' for k, v in chosen.items())})",
-          file=out)
+          f"min_confidence from the other folds: {', '.join(f'{k} {v}' for k, v in chosen.items())})"
+          + "".join(f"; {k}={v}" for k, v in (options or {}).items()), file=out)
     _report(recs, held, out)
     print("   the same without the confidence cut (raw path, every column the path claims):", file=out)
     raw_scores = {r["name"]: (score_skyline(Skyline(rows=r["rows"], width=r["rows"].size, height=1,

@@ -72,6 +72,23 @@ was made on these same held-out figures, so they flatter it a little. Held out i
 Mars false skyline 7.1 -> 5.2 %, missed 7.2 -> 9.3 %, no-sky mosaics 17.8 -> 12.8 % claimed;
 Earth 1.04 -> 0.82 px.
 
+Two ways round retraining, tried 2026-11-27 on the members above, held out as in the table, not
+taken:
+
+- **Recipes averaged.** Each image gets the mean log-odds of several recipes' members that held
+  its fold out. Each fold K's members were joined with ``--ensemble A/fold_K.pt B/fold_K.pt
+  --out DIR/fold_K.onnx``; fold_K.json was copied from one recipe. Mars px / false / missed /
+  no-sky claimed, Earth px:
+  x4 + x2: 1.95 / 13.9 % / 8.8 % / 31.8 %, 0.88; x4 + x8: 2.52 / 9.2 / 10.4 / 22.2, 0.98;
+  x4 + distant mountains x4: 2.44 / 10.8 / 13.7 / 26.9, 0.84; all four: 15.5 / 13.9 / 4.7 / 31.6,
+  0.93. Without the cut, averaging is no worse than x4 alone (false 13.3-17.7 % against
+  15.1 %), but the calibrated cut loses its grip: x4's lead is how its own confidence sorts its
+  columns, and averaging dilutes that.
+- **Another working scale at inference** (``bench_detect.py --set net_pixels=N``, the shipped
+  members): 150,000 px: Mars 2.12 px, false 10.7 %, missed 8.2 %, no-sky 24.2 %, Earth 1.04 px;
+  600,000 px: Mars 23.9 px, false 17.7 %, no-sky 40.9 %, Earth 1.30 px. The 300,000 px it was
+  trained at stays.
+
 For the next retraining, ``scripts/make_sky_sims_more.py OUT`` renders frames the shipped recipe
 lacks (72 frames, about a minute): snow and lakes on Earth, and dusty Mars frames tilted down until
 the skyline leaves their top, labelled terrain where the simulator recorded a column all ground.
