@@ -36,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from installs import child_env
+
 
 def _cgroup(limit_mb: int):
     """(path of a fresh memory cgroup limited to ``limit_mb`` without swap, how) or (None, why)."""
@@ -160,11 +162,7 @@ def main(argv=None):
     print(f"memory limit {args.limit_mb} MB: {how}; pinned to CPU {args.cpu}; load average "
           f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}", flush=True)
     skyfix = [args.board_python, "-m", "skyfix.cli.main", "-q"]
-    env = dict(os.environ)
-    # compared unresolved: every venv's python is a link to the same interpreter
-    if os.path.abspath(args.board_python) != os.path.abspath(sys.executable):
-        # another install's Python measures that install's skyfix, not the sources this runs from
-        env.pop("PYTHONPATH", None)
+    env = child_env(args.board_python)
     aot = subprocess.run([args.board_python, "-c", "from skyfix import jit; print(jit.ahead_of_time())"],
                          capture_output=True, text=True, env=env).stdout.strip() == "True"
     print(f"board commands run by {args.board_python}; kernels "

@@ -36,12 +36,13 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from installs import child_env
 
 from skyfix.detect import (PRESETS, DpOptions, NetOptions, combine_scores, detect_skyline, score_skyline,
                            scored_columns)
@@ -181,10 +182,7 @@ def peak_rss_4mp(img, out=sys.stdout, method="net", python=None):
                 f"detect_skyline(im, method='{method}'); "
                 "print(hwm())")
         python = python or sys.executable
-        env = dict(os.environ)
-        # compared unresolved: every venv's python is a link to the same interpreter
-        if os.path.abspath(python) != os.path.abspath(sys.executable):
-            env.pop("PYTHONPATH", None)  # the other install's own skyfix, not this checkout's
+        env = child_env(python)
         # one warm-up call first: the figure is a detection's, not numba's first compilation
         # (a JIT install compiles once, then reads its cache)
         subprocess.run([python, "-c", code, str(path)], capture_output=True, text=True, env=env)

@@ -42,6 +42,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from installs import child_env
+
 ROOT = Path(__file__).resolve().parents[1]
 
 MATCH_CHILD = r"""
@@ -70,11 +72,7 @@ PYTHON = [sys.executable]
 
 
 def _env():
-    # compared unresolved: every venv's python is a link to the same interpreter
-    if os.path.abspath(PYTHON[0]) != os.path.abspath(sys.executable):
-        # another install's Python measures that install's skyfix, not the sources this runs from
-        return {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    return dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    return child_env(PYTHON[0], own_src=str(ROOT / "src"))
 
 
 def make_profile(db_path, out, x, y, args):
