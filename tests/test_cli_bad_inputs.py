@@ -542,3 +542,37 @@ def test_horizon_refuses_an_absurd_camera_height(dem_file):
                        "camera height must be within 0 to 100000 m")
     r = run("horizon", dem_file, "--x", 500, "--y", 500, "--camera-height-m", 1e5, "--json")
     assert r.exit_code == 0, r.output
+
+
+@pytest.mark.parametrize("bins", [7, 18])
+def test_a_store_too_coarse_to_search_is_refused_before_building(tmp_path, dem_file, bins):
+    """A profile needs 20 observed bins to be searched: a store of fewer was built, then no
+    command could use it."""
+    out = tmp_path / "db.zarr"
+    r = run("build-db", dem_file, "-o", out, "--bounds", 400, 400, 600, 600, "--spacing-m", 100,
+            "--workers", 0, "--no-progress", "--azimuth-bins", bins)
+    assert_clean_error(r, f"got {bins}", "at least 20 azimuth bins")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("bins", [20, 90])
+def test_a_store_of_few_or_odd_bins_is_built_and_searched(tmp_path, dem_file, bins):
+    """The fewest bins allowed, and a count the coarse pass's 4 does not divide (it averages 3
+    then): each store is searched with the default settings."""
+    from skyfix.database import open_database
+    from skyfix.database.layout import dequantise
+    from skyfix.match import match_database
+
+    out = tmp_path / "db.zarr"
+    r = run("build-db", dem_file, "-o", out, "--bounds", 400, 400, 600, 600, "--spacing-m", 100,
+            "--workers", 0, "--no-progress", "--azimuth-bins", bins)
+    assert r.exit_code == 0, r.output
+    db = open_database(out)
+    assert db.azimuth_bins == bins
+    blk = next(db.iter_blocks())
+    k = blk.x.size // 2
+    stored = dequantise(blk.elevation[k]).astype(float)
+    # the stored skyline of one position as a rover turned two bins left of north sees it
+    best = match_database(db, np.roll(stored, 2)).candidates[0]
+    assert (best.x, best.y) == (blk.x[k], blk.y[k])
+    assert best.heading_deg % 360 == pytest.approx(360 - 2 * 360 / bins, abs=0.1) and best.score < 1e-3

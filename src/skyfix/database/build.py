@@ -42,8 +42,8 @@ from .coarse import add_coarse_index, create_coarse_array
 from .executors import check_executor_options, make_executor
 from .integrity import clean_partials, indexed_blocks, intact_blocks, root_state
 from .layout import (BLOCK, COMPRESSED_SHARE, FORMAT, FORMAT_VERSION, MAX_BUILD_BYTES,
-                     MAX_POSITIONS, META_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG, Grid,
-                     has_coarse_layout)
+                     MAX_POSITIONS, META_DIR, MIN_SEARCH_BINS, MISSING, SCALE_DEG, SKIP_TOL_DEG,
+                     Grid, has_coarse_layout)
 from .tasks import BuildSpec, build_blocks, check_renderer, remember_dem, tasks_of
 
 
@@ -188,6 +188,10 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
     azimuth_bins = int(azimuth_bins)
     if azimuth_bins > 65535:
         raise ParameterError(f"at most 65535 azimuth bins, got {azimuth_bins}")
+    # a store no profile could be searched against is refused now, not after hours of building
+    if azimuth_bins < MIN_SEARCH_BINS:
+        raise ParameterError(f"at least {MIN_SEARCH_BINS} azimuth bins (a profile needs that many "
+                             f"observed to be searched), got {azimuth_bins}; 360 is the default")
     if max_distance_m is not None and not (max_distance_m > 0 and math.isfinite(max_distance_m)):
         raise ParameterError(f"maximum distance must be > 0 m, got {max_distance_m}")
     if not (math.isfinite(camera_height_m) and camera_height_m >= 0):

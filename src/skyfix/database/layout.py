@@ -61,6 +61,9 @@ DATA_ARRAYS = ("elevation", "ground_z", "min_ray_m", "edge_bins")
 COARSE = "coarse"
 COARSE_STRIDE = 2
 COARSE_FACTOR = 4
+#: the fewest azimuth bins a store may have: a profile needs this many observed bins to be
+#: searched (:attr:`skyfix.match.MatchConfig.min_observed`)
+MIN_SEARCH_BINS = 20
 
 
 #: a build larger than this is refused up front (the 7 x 7 km area at 5 m is 1.96 M skylines, 425 MB)

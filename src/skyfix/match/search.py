@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..database import Block
-from ..database.layout import COARSE_FACTOR, COARSE_STRIDE
+from ..database.layout import COARSE_FACTOR, COARSE_STRIDE, MIN_SEARCH_BINS
 from ..errors import DatabaseError, ParameterError
 from .memory import MISSING_RAW, grid_index
 from .indexed import indexed_search
@@ -47,7 +47,8 @@ class MatchConfig:
     """How to match.
 
     remove_tilt : also fit the first azimuthal harmonic (small pitch/roll errors)
-    coarse_factor : bins averaged in the coarse pre-pass (1 = exact scoring everywhere)
+    coarse_factor : bins averaged in the coarse pre-pass (1 = exact scoring everywhere); for a
+        store whose bins it does not divide, the largest factor below it that does
     keep_fraction : share of each slice's positions scored exactly after the coarse pass
     keep_min : at least this many per slice are scored exactly
     coarse_stride : the coarse pass scores every ``coarse_stride``-th position along rows and
@@ -89,7 +90,7 @@ class MatchConfig:
     nms_radius_m: float = 40.0
     slice_rows: int = 2048
     workers: int = 2
-    min_observed: int = 20
+    min_observed: int = MIN_SEARCH_BINS
     prefetch: bool = True
     coarse_index: bool = True
 
@@ -214,10 +215,12 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
     n = int(db.azimuth_bins)
     if q.size != n:
         raise ParameterError(f"the profile has {q.size} azimuth bins but the database {n}; "
-                             "resample the profile to the database's bins")
+                             f"make it with `skyfix profile --azimuth-bins {n}`")
     f = int(config.coarse_factor)
-    if f < 1 or n % f:
-        raise ParameterError(f"coarse_factor {f} must divide the {n} azimuth bins")
+    if f < 1:
+        raise ParameterError(f"coarse_factor must be >= 1, got {f}")
+    # a store of 90 bins is as searchable as one of 360: its coarse pass averages 3 bins, not 4
+    f = max(k for k in range(1, f + 1) if n % k == 0)
     stride = int(config.coarse_stride)
     if stride < 1:
         raise ParameterError(f"coarse_stride must be >= 1, got {config.coarse_stride}")
