@@ -576,3 +576,46 @@ def test_a_store_of_few_or_odd_bins_is_built_and_searched(tmp_path, dem_file, bi
     best = match_database(db, np.roll(stored, 2)).candidates[0]
     assert (best.x, best.y) == (blk.x[k], blk.y[k])
     assert best.heading_deg % 360 == pytest.approx(360 - 2 * 360 / bins, abs=0.1) and best.score < 1e-3
+
+
+# --- outputs that would destroy something ----------------------------------------------------------
+
+def test_an_output_naming_an_input_is_refused_and_the_input_kept(tmp_path, image, dem_file,
+                                                                 stub_detect, stub_profile):
+    """--overwrite replaced an image with its skyline's JSON, or a DEM with the heading."""
+    img_bytes, dem_bytes = image.read_bytes(), dem_file.read_bytes()
+    assert_clean_error(run("detect", image, "-o", image, "--overwrite"),
+                       "is one of this command's inputs")
+    acq = write_acq(tmp_path / "acq")
+    assert_clean_error(run("heading", acq, "--dem", dem_file, "--x", 500, "--y", 500, "-o", dem_file,
+                           "--overwrite"), "is one of this command's inputs")
+    # the same file by another path: a link to the acquisition's image
+    (tmp_path / "alias.png").symlink_to(acq / "f.png")
+    assert_clean_error(run("profile", acq, "-o", tmp_path / "alias.png", "--overwrite"),
+                       "is one of this command's inputs")
+    assert image.read_bytes() == img_bytes and dem_file.read_bytes() == dem_bytes
+    assert (acq / "f.png").read_bytes() == b"placeholder"
+    assert stub_detect == []
+
+
+def test_a_device_pipe_or_standard_output_is_refused(tmp_path, image, stub_detect):
+    """A pipe (or /dev/null, as root) was replaced by a regular file under --overwrite."""
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    for out in (fifo, "/dev/null"):
+        assert_clean_error(run("detect", image, "-o", out, "--overwrite"), "not a regular file")
+    assert_clean_error(run("detect", image, "-o", "-"), "not to standard output")
+    import stat
+
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode) and not (tmp_path / "-").exists()
+    assert stub_detect == []
+
+
+def test_an_output_through_a_link_replaces_the_file_it_points_at(tmp_path, image, stub_detect):
+    target = tmp_path / "target.json"
+    target.write_text("{}")
+    link = tmp_path / "link.json"
+    link.symlink_to(target)
+    r = run("detect", image, "-o", link, "--overwrite")
+    assert r.exit_code == 0, r.output
+    assert link.is_symlink() and read_skyline_json(target).rows[0] == 10.0

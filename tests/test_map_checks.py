@@ -169,3 +169,28 @@ def test_dem_sigma_sizes_the_position_sigma_not_the_fix(tmp_path, files, detecti
     assert wide["position_sigma_m"] > exact["position_sigma_m"] + 0.5
     assert wide["provenance"]["options"]["dem_sigma_m"] == 2.0
     assert exact["provenance"]["options"]["dem_sigma_m"] == 0.0
+
+
+def test_a_prior_area_off_the_database_is_refused_before_detection(tmp_path, files,
+                                                                   detection_forbidden):
+    """It was refused only after every image had been detected."""
+    dem_path, _, db_path = files
+    acq = _acquisition(tmp_path)
+    r = _run("locate", acq, "--db", db_path, "--prior-x", 0, "--prior-y", 0, "--prior-radius-m", 50)
+    assert r.exit_code == 2, r.output
+    assert "no database position lies inside the prior area" in r.output
+    assert "spans x 300.0..500.0" in r.output and "Traceback" not in r.output
+    # a disc between grid positions that holds none (the grid is 10 m)
+    r = _run("locate", acq, "--db", db_path, "--prior-x", 405, "--prior-y", 405, "--prior-radius-m", 3)
+    assert r.exit_code == 2 and "the nearest is 7.1 m away" in r.output, r.output
+
+
+@pytest.mark.parametrize("where", [("--x", -500, "--y", 400), ("--lon", 500, "--lat", 0),
+                                   ("--lon", 0, "--lat", 95)])
+def test_a_heading_position_off_the_dem_is_refused_before_detection(tmp_path, files,
+                                                                    detection_forbidden, where):
+    dem_path, _, _ = files
+    r = _run("heading", _acquisition(tmp_path), "--dem", dem_path, *where)
+    assert r.exit_code == 2, r.output
+    assert ("outside the DEM" if where[0] == "--x" else "must be within") in r.output
+    assert "Traceback" not in r.output

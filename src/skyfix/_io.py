@@ -132,6 +132,8 @@ def atomic_path(path, *, suffix: str | None = None):
     path = Path(path)
     if path.is_dir():
         raise cannot_write(path, "it is a folder (give a file name)")
+    if path.is_symlink():  # the link stays; what it points at is replaced, as a shell's > would
+        path = Path(os.path.realpath(path))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(
@@ -229,8 +231,15 @@ def check_can_write(path, overwrite: bool, *, folder: bool | None = None, suffix
     if folder is False and path.is_dir():
         raise cannot_write(path, "it is a folder: give a file name" +
                            (f", e.g. {path / 'out'}{next(iter(suffixes))}" if suffixes else ""))
+    if str(path) == "-":
+        raise cannot_write(path, "skyfix writes its outputs to files, not to standard output: "
+                                 "give a file name")
     if suffixes is not None and path.suffix.lower() not in suffixes:
         raise cannot_write(path, _suffix_reason(path, suffixes))
+    if path.exists() and not (path.is_file() or path.is_dir()):
+        # a device, a pipe or a socket cannot be replaced by a file written whole, and must not be
+        raise cannot_write(path, "it is not a regular file (a device, pipe or socket): give a "
+                                 "file name")
     if os.path.lexists(path) and not overwrite:
         raise OutputExistsError(f"{path} already exists: pass --overwrite to replace it")
     if folder is True and path.is_dir():
@@ -243,13 +252,28 @@ def check_can_write(path, overwrite: bool, *, folder: bool | None = None, suffix
     return path
 
 
-def check_outputs(overwrite: bool, *outputs) -> None:
+def check_not_inputs(outputs, inputs) -> None:
+    """Refuse an output that is one of the command's input files (links and relative paths
+    resolved): ``--overwrite`` would otherwise replace an image or a DEM with the answer.
+
+    outputs : ``(option, path, ...)`` tuples, ``path`` None = not asked for; inputs : paths
+    """
+    ins = {os.path.realpath(p) for p in inputs if p is not None}
+    for option, path, *_ in outputs:
+        if path is not None and os.path.realpath(path) in ins:
+            raise SkyfixError(f"{option} {path} is one of this command's inputs: writing it would "
+                              "destroy it; give the output another name")
+
+
+def check_outputs(overwrite: bool, *outputs, inputs=()) -> None:
     """Check every output of one command before any work (see :func:`check_can_write`).
 
     outputs : ``(option, path, suffixes)`` for each file output; ``path`` None = not asked for,
         ``suffixes`` None = any. Two options naming the same file are refused too: the second
-        would silently replace the first.
+        would silently replace the first; so is one that names a file of ``inputs``
+        (:func:`check_not_inputs`).
     """
+    check_not_inputs(outputs, inputs)
     seen: dict[str, str] = {}
     for option, path, suffixes in outputs:
         if path is None:

@@ -105,7 +105,8 @@ def detect(image, mask, method, output, plot, overwrite):
     from ..detect import detect_skyline
     from ..formats import write_skyline_json
 
-    check_outputs(overwrite, ("--output", output, None), ("--plot", plot, PLOT_FORMATS))
+    check_outputs(overwrite, ("--output", output, None), ("--plot", plot, PLOT_FORMATS),
+                  inputs=(image, mask))
     img = read_image(image)
     m = read_mask(mask, img.shape) if mask is not None else None
     sky = detect_skyline(img, mask=m, method=method, name=Path(image).name)

@@ -38,6 +38,41 @@ def _detector_used(profile_path, detector):
     return None if profile_path is not None else (detector or DEFAULT_METHOD)
 
 
+def _input_files(acq_dir, profile_path, dem_paths) -> list:
+    """The files a locate or heading run reads (the acquisition's own, the profile, the DEMs): no
+    output may replace one of them."""
+    files = [profile_path, *(dem_paths or ())]
+    if acq_dir is not None:
+        from ..formats import load_acquisition
+
+        files += load_acquisition(acq_dir).files()
+    return files
+
+
+def _check_prior_area(db, dem, prior, radius_m) -> None:
+    """Refuse, before any image is read, a prior disc (centre [m], radius [m]) that holds no
+    database position, or, searched on the DEM alone, whose centre lies off the DEM."""
+    if prior is None:
+        return
+    if db is not None:
+        import numpy as np
+
+        xs, ys = np.asarray(db.x_coords), np.asarray(db.y_coords)
+        # on a rectangular grid the nearest position takes the nearest column and the nearest row
+        gx = xs[np.argmin(np.abs(xs - prior[0]))]
+        gy = ys[np.argmin(np.abs(ys - prior[1]))]
+        d = float(np.hypot(gx - prior[0], gy - prior[1]))
+        if d > radius_m:
+            raise ParameterError(
+                f"no database position lies inside the prior area ({prior[0]:.1f}, {prior[1]:.1f}) "
+                f"+- {radius_m:g} m: the nearest is {d:.1f} m away; the database spans x "
+                f"{xs.min():.1f}..{xs.max():.1f}, y {ys.min():.1f}..{ys.max():.1f}")
+    elif dem is not None:
+        import numpy as np
+
+        dem.require_inside(np.array([prior[0]]), np.array([prior[1]]), "prior position")
+
+
 def _read_profile(acq_dir, profile_path, frames=None, detector=None):
     """Profile from ``--profile`` JSON, else from the acquisition folder, its images detected with
     ``detector`` (a method name; None: the default); with the attitude prior (pitch, roll) [deg]
@@ -257,7 +292,8 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
         raise ParameterError("--score-map needs --db (the map is the database's score)")
     dem_sigma_m = dem_sigma(dem_sigma_m)
     check_outputs(overwrite, ("--output", out, None), ("--geojson", geojson, None),
-                  ("--score-map", score_map, GEOTIFF_SUFFIXES), ("--plot", plot, PLOT_FORMATS))
+                  ("--score-map", score_map, GEOTIFF_SUFFIXES), ("--plot", plot, PLOT_FORMATS),
+                  inputs=_input_files(acq_dir, profile_path, dem_paths))
     # The database and the DEM are opened and checked against each other, and the acquisition's
     # description read, before any image is (detection is the long part).
     db = dem = None
@@ -271,6 +307,9 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
 
             dem = load_dems(list(dem_paths))
         notes = _check_db_dem(db, dem, db_path, dem_path, force)
+        prior = point_xy(prior_x, prior_y, prior_lon, prior_lat,
+                         getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else ""))
+        _check_prior_area(db, dem, prior, prior_radius_m)
         if acq_dir is not None:
             from ..formats import load_acquisition
 
@@ -287,8 +326,6 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     from ..match import PRESETS
     from ..pose import PoseConfig, locate as _locate
 
-    prior = point_xy(prior_x, prior_y, prior_lon, prior_lat,
-                     getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else ""))
     with stage("located") as st:
         fix, mres = _locate(prof, db=db, dem=dem, prior_xy=prior, prior_radius_m=prior_radius_m,
                             prior_pitch_deg=pp, prior_roll_deg=pr, camera_height_m=cam_h,
@@ -353,6 +390,8 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     """Find the heading only, from a rough position."""
     import math
 
+    import numpy as np
+
     from .._io import check_outputs, to_json, write_json
     from ..stack import load_dems
     from ..north import grid_heading_from_true, meridian_convergence_deg
@@ -373,12 +412,15 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
         raise ParameterError(f"--position-sigma-m must be a finite number of metres >= 0, got "
                              f"{position_sigma_m}")
     dem_sigma_m = dem_sigma(dem_sigma_m)
-    check_outputs(overwrite, ("--output", out, None))
-    frames = []  # the frames' detected rows: a narrow view is also solved in the image plane
-    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames, detector)
+    check_outputs(overwrite, ("--output", out, None),
+                  inputs=_input_files(acq_dir, profile_path, dem_paths))
+    # the DEM and the position are checked before any image is read (detection is the long part)
     dem_path = " + ".join(dem_paths)
     dem = load_dems(list(dem_paths))
     x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
+    dem.require_inside(np.array([x]), np.array([y]), "rough position")
+    frames = []  # the frames' detected rows: a narrow view is also solved in the image plane
+    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames, detector)
     h = camera_height_m if camera_height_m is not None else (cam_h if cam_h is not None else 1.5)
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     if prior_north == "true" and not math.isfinite(conv) and window_deg < 180:

@@ -85,6 +85,11 @@ def check_point_options(x, y, lon, lat, *, xname="--x", yname="--y", lonname="--
         for n, v in ((na, a), (nb, b)):
             if v is not None and not math.isfinite(v):
                 raise ParameterError(f"{n} must be a finite number, got {v}")
+    if lat is not None and not -90.0 <= lat <= 90.0:
+        raise ParameterError(f"{latname} must be within [-90, 90] deg, got {lat}")
+    # east longitudes 0-360, as Mars's are often given, as well as -180-180
+    if lon is not None and not -180.0 <= lon <= 360.0:
+        raise ParameterError(f"{lonname} must be within [-180, 360] deg, got {lon}")
     if x is not None and lon is not None:
         raise ParameterError(f"give {xname}/{yname} or {lonname}/{latname}, not both")
     if required and x is None and lon is None:

@@ -25,12 +25,14 @@ from .options import detector_option
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
 def profile(acq_dir, method, azimuth_bins, detector, no_refine, output, plot, overwrite):
     """Turn the acquisition in ACQ_DIR into an angular skyline profile in the rover's body frame."""
-    from .._io import PLOT_FORMATS, check_outputs, to_json
+    from .._io import PLOT_FORMATS, check_not_inputs, check_outputs, to_json
     from ..formats import load_acquisition, write_profile_json
     from ..profile import PanRefinement, acquisition_profile
 
-    check_outputs(overwrite, ("--output", output, None), ("--plot", plot, PLOT_FORMATS))
+    outputs = (("--output", output, None), ("--plot", plot, PLOT_FORMATS))
+    check_outputs(overwrite, *outputs)
     acq = load_acquisition(acq_dir)
+    check_not_inputs(outputs, acq.files())
     prof = acquisition_profile(acq, method=method, azimuth_bins=azimuth_bins, detector=detector,
                                refine=PanRefinement(enabled=not no_refine))
     if output is not None:

@@ -80,6 +80,11 @@ class Acquisition:
     def image_path(self, name: str) -> Path:
         return self.root / name
 
+    def files(self) -> list[Path]:
+        """The acquisition's own files: its ``acquisition.json`` and every image it names."""
+        names = [f.image for f in self.frames] + ([self.panorama.image] if self.panorama else [])
+        return [self.root / ACQUISITION_FILE] + [self.image_path(n) for n in names]
+
     def to_dict(self) -> dict:
         d: dict = {}
         if self.camera is not None:
