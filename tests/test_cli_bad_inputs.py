@@ -619,3 +619,28 @@ def test_an_output_through_a_link_replaces_the_file_it_points_at(tmp_path, image
     r = run("detect", image, "-o", link, "--overwrite")
     assert r.exit_code == 0, r.output
     assert link.is_symlink() and read_skyline_json(target).rows[0] == 10.0
+
+
+@pytest.mark.parametrize("step, msg", [(0, "not 0"), (400, "span more than 360 deg"),
+                                       (float("nan"), "finite")])
+def test_acquisition_init_refuses_pans_that_cannot_be(tmp_path, step, msg):
+    """A zero step put every image at pan 0, as simulate already refused."""
+    import cv2
+
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"f{k}.png"), np.full((48, 64, 3), 120, np.uint8))
+    assert_clean_error(run("acquisition-init", tmp_path, "--hfov-deg", 45, "--pan-step-deg", step,
+                           "--camera-height-m", 1.5), msg)
+    assert not (tmp_path / "acquisition.json").exists()
+    r = run("acquisition-init", tmp_path, "--hfov-deg", 45, "--pan-step-deg", -30,
+            "--camera-height-m", 1.5)
+    assert r.exit_code == 0, r.output
+    assert [f.pan_deg for f in load_acquisition(tmp_path).frames] == [0.0, -30.0, -60.0]
+
+
+def test_a_panorama_too_large_to_render_is_refused_before_any_work(tmp_path, dem_file):
+    """100000 x 50000 px died of a MemoryError, with a traceback, asking for 56 GiB."""
+    out = tmp_path / "sim"
+    assert_clean_error(run("simulate", dem_file, "--x", 500, "--y", 500, "--yaw-deg", 0, "--mode",
+                           "panorama", "--pano-size", 100000, 50000, "-o", out), "64 MP")
+    assert not out.exists()

@@ -62,6 +62,15 @@ def acquisition_init(folder, images, hfov_deg, focal_px, pan_deg, pan_step_deg, 
         raise ParameterError("give the camera's --hfov-deg or its --focal-px (one of them)")
     if (pan_deg is None) == (pan_step_deg is None):
         raise ParameterError("give every image's --pan-deg, or --pan-step-deg (one of them)")
+    if pan_step_deg is not None:
+        if not (math.isfinite(pan_start_deg) and math.isfinite(pan_step_deg) and pan_step_deg != 0):
+            raise ParameterError(f"--pan-start-deg must be finite and --pan-step-deg finite and not 0 "
+                                 f"(negative pans the other way), got {pan_start_deg:g} and "
+                                 f"{pan_step_deg:g}")
+        # a turn's images a step apart never wrap past a full circle onto each other
+        if (len(names) - 1) * abs(pan_step_deg) >= 360.0:
+            raise ParameterError(f"{len(names)} images every {pan_step_deg:g} deg span more than "
+                                 "360 deg: check --pan-step-deg, or give each --pan-deg")
     check_can_write(root / ACQUISITION_FILE, overwrite)
     first = cv2.imread(str(root / names[0]), cv2.IMREAD_UNCHANGED)
     if first is None:

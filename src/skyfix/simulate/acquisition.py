@@ -47,6 +47,11 @@ PANO_WIDTH, PANO_HEIGHT = 4096, 1024
 PANO_ELEVATION_TOP_DEG, PANO_VFOV_DEG = 45.0, 90.0
 
 
+#: the largest panorama the simulator renders [px] (a 100000 x 50000 request died of a NumPy
+#: MemoryError, with a traceback, asking for 56 GiB)
+MAX_PANO_PIXELS = 64 * 10**6
+
+
 def frame_pans(camera: Camera, frames: int | None = None, pan_start_deg: float | None = None,
                pan_step_deg: float | None = None) -> list[float]:
     """Mast pan angles [deg] of a frame set overlapping by about a third of a frame.
@@ -103,6 +108,10 @@ def check_render_options(*, mode: str, camera, camera_height_m: float, tilt_deg:
         w, h = int(pano_size[0]), int(pano_size[1])
         if w < 2 or h < 2:
             raise ParameterError(f"panorama size must be at least 2 x 2 px, got {w} x {h}")
+        if w * h > MAX_PANO_PIXELS:  # one of the ray caster's arrays alone is 12 bytes a pixel
+            raise ParameterError(f"panorama size {w} x {h} px is more than the "
+                                 f"{MAX_PANO_PIXELS // 10**6} MP the simulator renders (e.g. "
+                                 "16384 x 3906); the default is 4096 x 1024")
         if not (np.isfinite(vfov_deg) and 0 < vfov_deg <= 180):
             raise ParameterError(f"panorama vfov must be in (0, 180] deg, got {vfov_deg}")
         if not np.isfinite(elevation_top_deg):
