@@ -23,6 +23,11 @@ from .scoring import profile_arrays
 
 #: Confidence at most, of a heading pinned to the edge of its search window.
 PINNED_HEADING_CONFIDENCE = 0.05
+#: [deg] scenario 3's tolerance: a heading within it is right (the confidence model's)
+HEADING_TOLERANCE_DEG = 1.0
+#: [deg] the 1-sigma of a heading known not at all (uniform on the circle: 360 / sqrt(12)); no
+#: reported sigma exceeds it
+UNKNOWN_HEADING_SIGMA_DEG = 360.0 / math.sqrt(12.0)
 #: [m] how far scenario 3's rough position is taken to be off unless told (``skyfix heading
 #: --position-sigma-m``): its rover knows where it is from odometry to metres, every 50 m
 HEADING_POSITION_SIGMA_M = 10.0
@@ -182,6 +187,13 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         hsig = max(hsig, img.yaw_sigma_deg)
         psig = max(psig, img.pitch_sigma_deg)
         rsig = max(rsig, img.roll_sigma_deg)
+    hsig = min(hsig, UNKNOWN_HEADING_SIGMA_DEG)
+    if hsig > 2.0 * HEADING_TOLERANCE_DEG:
+        # A heading whose own sigma spans twice the tolerance is not likely right, however well
+        # the profile fits: e.g. a rough position known to kilometres, whose near and far skylines
+        # alike then say little of the heading (7.8 M deg at confidence 0.9999997 with 1e9 m). At
+        # most the chance that a normal error of that sigma stays within the tolerance.
+        conf = min(conf, math.erf(HEADING_TOLERANCE_DEG / (hsig * math.sqrt(2.0))))
     determined = {k: bool(math.isfinite(v) and v <= DETERMINED_SIGMA_DEG)
                   for k, v in (("heading", hsig), ("pitch", psig), ("roll", rsig))}
     return HeadingFix(true_heading_deg(grid, conv), hsig, pitch, roll,
