@@ -102,3 +102,199 @@ def test_fractal_dem_is_reproducible_and_has_the_requested_relief():
     assert not np.array_equal(a.z, c.z)
     assert float(a.z.max() - a.z.min()) == pytest.approx(800.0, rel=1e-4)
     assert a.crs_name == "EPSG:32611" and a.dx == 30.0
+
+
+# --- reprojection: crop to the source's footprint, never to its voids ------------------------------
+
+def _write_tif(path, z, transform, crs, nodata):
+    import rasterio
+
+    with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1,
+                       dtype=z.dtype.name, crs=crs, transform=transform, nodata=nodata) as dst:
+        dst.write(z, 1)
+    return path
+
+
+def _lonlat_plane(lon, lat, lon0, lat0):
+    """A smooth tilted surface [m] over lon/lat [deg]: bilinear resampling reproduces it to a few cm."""
+    return 1000.0 + 3000.0 * (lon - lon0) + 2000.0 * (lat - lat0)
+
+
+def _geographic_tile(tmp_path, lon0, lat0, size_deg, step_deg, voids=None, name="geo.tif"):
+    """A north-up EPSG:4326 GeoTIFF of :func:`_lonlat_plane`, SRTM-like (int16 would round: float32),
+    with NaN nodata where ``voids(rows, cols)`` is true. Returns (path, source transform)."""
+    from rasterio.transform import from_origin
+
+    n = int(round(size_deg / step_deg))
+    transform = from_origin(lon0, lat0 + size_deg, step_deg, step_deg)
+    cols, rows = np.meshgrid(np.arange(n), np.arange(n))
+    lon = lon0 + (cols + 0.5) * step_deg
+    lat = lat0 + size_deg - (rows + 0.5) * step_deg
+    z = _lonlat_plane(lon, lat, lon0, lat0).astype(np.float32)
+    if voids is not None:
+        z[voids(rows, cols)] = np.nan
+    return _write_tif(tmp_path / name, z, transform, "EPSG:4326", np.nan), transform
+
+
+def _footprint_area_m2(crs_wkt, west, south, east, north, n=200):
+    """Area [m2] of a lon/lat box drawn in a projected CRS (densified edges, shoelace): the
+    reference for how much of the source a reprojected DEM may keep."""
+    from pyproj import CRS, Transformer
+
+    t = Transformer.from_crs("EPSG:4326", CRS.from_wkt(crs_wkt), always_xy=True)
+    s = np.linspace(0.0, 1.0, n)
+    lon = np.concatenate([west + (east - west) * s, np.full(n, east),
+                          east - (east - west) * s, np.full(n, west)])
+    lat = np.concatenate([np.full(n, south), south + (north - south) * s,
+                          np.full(n, north), north - (north - south) * s])
+    x, y = t.transform(lon, lat)
+    return 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def _dem_area_m2(dem):
+    xmin, ymin, xmax, ymax = dem.bounds
+    return (xmax - xmin) * (ymax - ymin)
+
+
+def test_voids_of_a_geographic_dem_never_shrink_it_when_reprojected(tmp_path):
+    """A band of voids along the west edge and 8 % scattered voids used to be cut as 'border'
+    until every edge line was 99 % valid; they must be filled and the extent kept."""
+    from pyproj import CRS, Transformer
+
+    lon0, lat0, size, step = 8.0, 46.0, 0.2, 1 / 1200  # 3 arc-second cells, 240 x 240
+    rng = np.random.default_rng(3)
+    scattered = rng.random((240, 240)) < 0.08
+
+    def voids(rows, cols):
+        return ((cols >= 1) & (cols <= 6)) | scattered[rows, cols]
+
+    path, _ = _geographic_tile(tmp_path, lon0, lat0, size, step, voids)
+    dem = load_dem(path)
+    assert dem.crs_name == "EPSG:32632"
+    assert dem.voids.n_void > 0.1 * dem.z.size and dem.voids.n_remaining == 0
+    assert np.isfinite(dem.z).all()
+    # The largest north-up rectangle in UTM 32 loses only the thin wedges of the grid's rotation.
+    assert _dem_area_m2(dem) > 0.97 * _footprint_area_m2(dem.crs_wkt, lon0, lat0, lon0 + size, lat0 + size)
+    to_xy = Transformer.from_crs("EPSG:4326", CRS.from_wkt(dem.crs_wkt), always_xy=True)
+    # In the void band, 4.5 source cells (290 m) from the west edge, beyond the 140 m wedge the
+    # meridian's tilt costs there: still on the DEM.
+    x, y = to_xy.transform(lon0 + 4.5 * step, lat0 + size / 2)
+    dem.require_inside(x, y)
+    # Heights agree with the source surface evaluated at the same lon/lat (pyproj, not skyfix):
+    # where no source cell nearby is void, to within GDAL's warp (it places samples to about 1/8
+    # cell: 0.3 m on this 4 m-a-cell slope); on filled cells to within the rise over one cell.
+    # Filled heights in the band are plausible, not exact (inverse-distance filling is not
+    # linear): within the 25 m the surface rises over ten cells.
+    lon = rng.uniform(lon0 + 0.01, lon0 + size - 0.01, 2000)
+    lat = rng.uniform(lat0 + 0.01, lat0 + size - 0.01, 2000)
+    err = np.abs(dem.height_at(*to_xy.transform(lon, lat)) - _lonlat_plane(lon, lat, lon0, lat0))
+    col = np.floor((lon - lon0) / step - 0.5).astype(int)
+    row = np.floor((lat0 + size - lat) / step - 0.5).astype(int)
+    void = voids(*np.meshgrid(np.arange(240), np.arange(240), indexing="ij"))
+    near_void = np.array([void[r - 1:r + 3, c - 1:c + 3].any() for r, c in zip(row, col)])
+    assert 300 < near_void.sum() < 1700
+    assert err[~near_void].max() < 0.5 and err.max() < 4.0
+    lon_band = lon0 + rng.uniform(4.5, 6.5, 50) * step
+    err_band = (dem.height_at(*to_xy.transform(lon_band, lat[:50]))
+                - _lonlat_plane(lon_band, lat[:50], lon0, lat0))
+    assert np.isfinite(err_band).all() and np.abs(err_band).max() < 25.0
+
+
+def test_reprojection_wedges_are_cropped_without_inventing_heights(tmp_path):
+    """Far from the UTM central meridian the tile is rotated in the grid (2.6 deg at 12 E, 60 N):
+    the empty wedges around it go, every kept cell lies on the source, and nothing is filled."""
+    from pyproj import CRS, Transformer
+    from rasterio.warp import calculate_default_transform
+
+    lon0, lat0, size, step = 11.8, 60.0, 0.3, 1 / 600
+    path, src_transform = _geographic_tile(tmp_path, lon0, lat0, size, step)
+    dem = load_dem(path)
+    assert dem.crs_name == "EPSG:32632"
+    assert dem.voids.n_void == 0 and np.isfinite(dem.z).all()
+    # Cropped: smaller than the reprojection's full (wedged) grid ...
+    _, w, h = calculate_default_transform("EPSG:4326", dem.crs_wkt, 180, 180, lon0, lat0,
+                                          lon0 + size, lat0 + size, resolution=dem.dx)
+    assert dem.z.shape[0] < h and dem.z.shape[1] < w
+    # ... every cell centre on the source raster (checked by pyproj) ...
+    to_ll = Transformer.from_crs(CRS.from_wkt(dem.crs_wkt), "EPSG:4326", always_xy=True)
+    ny, nx = dem.z.shape
+    rows, cols = np.r_[np.zeros(nx), np.full(nx, ny - 1), np.arange(ny), np.arange(ny)], \
+        np.r_[np.arange(nx), np.arange(nx), np.zeros(ny), np.full(ny, nx - 1)]
+    lon, lat = to_ll.transform(*dem.colrow_to_xy(cols, rows))
+    assert (lon >= lon0).all() and (lon <= lon0 + size).all()
+    assert (lat >= lat0).all() and (lat <= lat0 + size).all()
+    # ... and nothing more than the wedges lost: the meridians lean by the 2.6 deg convergence,
+    # so 1.5 km of the tile's 16.7 km width is wedge (9 %).
+    assert _dem_area_m2(dem) > 0.87 * _footprint_area_m2(dem.crs_wkt, lon0, lat0, lon0 + size, lat0 + size)
+    lon_c, lat_c = to_ll.transform(*dem.colrow_to_xy(nx // 2, ny // 2))
+    assert dem.z[ny // 2, nx // 2] == pytest.approx(_lonlat_plane(lon_c, lat_c, lon0, lat0), abs=0.5)
+
+
+def test_a_target_crs_rotated_against_the_dem_says_how_much_is_kept(tmp_path, caplog):
+    """An oblique Mercator whose grid is turned 45 deg leaves room for a north-up rectangle of only
+    a / (2 b) = 35 % of a 15.4 x 22.2 km tile: allowed, but said aloud."""
+    path, _ = _geographic_tile(tmp_path, 8.0, 46.0, 0.2, 1 / 1200)
+    rotated = ("+proj=omerc +lat_0=46.1 +lonc=8.1 +alpha=45 +gamma=0 +k=1 +x_0=0 +y_0=0 "
+               "+ellps=WGS84 +units=m")
+    with caplog.at_level("WARNING", logger="skyfix.dem"):
+        dem = load_dem(path, crs=rotated)
+    assert "35.2 % of the source's footprint" in caplog.text
+    assert dem.voids.n_void == 0 and np.isfinite(dem.z).all()
+
+
+def test_shared_alps_tile_keeps_its_whole_degree():
+    from skyfix.workcrs import geographic_bounds, lonlat_to_xy
+
+    dem = load_dem(shared_dem_path("alps_srtm3_n46e008"))
+    w, s, e, n = geographic_bounds(dem.crs_wkt, dem.bounds)
+    assert w < 8.01 and e > 8.99 and s < 46.01 and n > 46.99  # it was lon 8.198..9.000
+    dem.require_inside(*lonlat_to_xy(dem.crs_wkt, 8.1, 46.5))
+    swiss = load_dem(shared_dem_path("alps_srtm3_n46e008"), crs="EPSG:2056")
+    xmin, ymin, xmax, ymax = swiss.bounds
+    assert xmax - xmin > 74_000 and ymax - ymin > 109_000  # it was 80 m wide
+
+
+# --- distorted projected Earth DEMs ----------------------------------------------------------------
+
+def _web_mercator_tile(tmp_path):
+    """The lon/lat surface on a Web Mercator grid around 8.5 E, 46.5 N (distances stretched 45 %)."""
+    from pyproj import Transformer
+    from rasterio.transform import from_origin
+
+    to_ll = Transformer.from_crs("EPSG:3857", "EPSG:4326", always_xy=True)
+    x0, y0 = Transformer.from_crs("EPSG:4326", "EPSG:3857", always_xy=True).transform(8.45, 46.55)
+    step, n = 100.0, 100
+    cols, rows = np.meshgrid(np.arange(n), np.arange(n))
+    lon, lat = to_ll.transform(x0 + (cols + 0.5) * step, y0 - (rows + 0.5) * step)
+    z = _lonlat_plane(lon, lat, 8.45, 46.45).astype(np.float32)
+    return _write_tif(tmp_path / "merc.tif", z, from_origin(x0, y0, step, step), "EPSG:3857", np.nan)
+
+
+def test_earth_dem_in_web_mercator_is_read_into_its_utm_zone(tmp_path, caplog):
+    from pyproj import CRS, Transformer
+
+    path = _web_mercator_tile(tmp_path)
+    with caplog.at_level("WARNING", logger="skyfix.dem"):
+        dem = load_dem(path)
+    assert dem.crs_name == "EPSG:32632" and dem.scale_error < 1e-3
+    assert "EPSG:3857 stretches distances by up to 45" in caplog.text and "--crs" in caplog.text
+    # True distances: 100 Mercator metres are 100 cos(46.5 deg) = 69 m on the ground.
+    assert dem.dx == pytest.approx(100 * np.cos(np.radians(46.5)), rel=0.01)
+    rng = np.random.default_rng(0)
+    lon, lat = rng.uniform(8.46, 8.50, 100), rng.uniform(46.51, 46.54, 100)
+    x, y = Transformer.from_crs("EPSG:4326", CRS.from_wkt(dem.crs_wkt), always_xy=True).transform(lon, lat)
+    np.testing.assert_allclose(dem.height_at(x, y), _lonlat_plane(lon, lat, 8.45, 46.45), atol=0.5)
+    # Asked for by name, Web Mercator is kept, with the distortion said.
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="skyfix.dem"):
+        merc = load_dem(path, crs="EPSG:3857")
+    assert merc.crs_name == "EPSG:3857" and merc.scale_error > 0.4
+    assert "requested CRS EPSG:3857 stretches distances" in caplog.text
+
+
+def test_mildly_distorted_earth_dem_is_kept_with_a_warning(caplog):
+    path = shared_dem_path("sierra_nevada_30m")  # Albers, 0.98 % over the DEM
+    with caplog.at_level("WARNING", logger="skyfix.dem"):
+        dem = load_dem(path)
+    assert dem.crs_name == "ESRI:102003" and dem.z.shape == (1100, 1100)
+    assert 0.009 < dem.scale_error < 0.01 and "pass --crs" in caplog.text

@@ -21,6 +21,11 @@ from .workcrs import MAX_SCALE_ERROR, geographic_bounds, local_tm_crs, scale_err
 
 log = logging.getLogger(__name__)
 
+#: [fraction] above this scale error a projected Earth DEM read without ``--crs`` is reprojected to
+#: its UTM zone; between :data:`~skyfix.workcrs.MAX_SCALE_ERROR` (0.1 %) and this it is kept with a
+#: warning. 1 % of a 5 km sight line lowers a ridge 1000 m above the camera by 0.1 deg.
+MAX_KEPT_SCALE_ERROR = 0.01
+
 
 @dataclass(frozen=True)
 class VoidReport:
@@ -213,12 +218,16 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
 
     path : DEM file
     crs : target CRS (``EPSG:…``, WKT, PROJ); default (:mod:`skyfix.workcrs`): the DEM's own when
-        projected in metres (on a body other than Earth, only if its scale error over the DEM is
-        within 0.1 %), else a transverse Mercator on the DEM's body centred on it (on Earth: the
-        UTM zone of the DEM's centre, as always). The body (:attr:`Dem.body`) comes from the
-        CRS's datum. Heights are metres: a band scale and offset are applied; a band whose unit
-        says otherwise (feet, km) is refused
-    resolution_m : [m] pixel size when reprojecting; default about the native size
+        projected in metres, on a body other than Earth only if its scale error over the DEM is
+        within 0.1 %, on Earth only if it is within 1 % (:data:`MAX_KEPT_SCALE_ERROR`; over 0.1 %
+        with a warning); else a transverse Mercator on the DEM's body centred on it (on Earth: the
+        UTM zone of the DEM's centre, as for a geographic DEM, with a warning). A given ``crs``
+        is used as is, with a warning if it stretches distances by more than 0.1 % over the DEM.
+        The body (:attr:`Dem.body`) comes from the CRS's datum. Heights are metres: a band scale
+        and offset are applied; a band whose unit says otherwise (feet, km) is refused
+    resolution_m : [m] pixel size when reprojecting; default about the native size. A reprojected
+        grid is cropped to a north-up rectangle inside the source raster's footprint (its own
+        no-data cells count as inside: they are voids, filled below, never a reason to crop)
     fill_max_cells : [cells] voids are filled by inverse-distance interpolation when a valid height
         lies within this many cells; larger voids stay masked (NaN) and are reported
     """
@@ -271,12 +280,22 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
             dst_crs = src_crs
             err = scale_error(src_crs, src.bounds)
             if err > MAX_SCALE_ERROR:
+                w, s, e, n = geographic_bounds(src_crs, src.bounds)
                 if body is not EARTH:
-                    w, s, e, n = geographic_bounds(src_crs, src.bounds)
                     dst_crs = local_tm_crs(src_crs, (w + e) / 2, (s + n) / 2)
                     log.info("%s: %s stretches distances by up to %.2f %% over the DEM: "
                              "reprojected to %s", path.name, _crs_name(src_crs) or src_crs.name,
                              100 * err, dst_crs.name)
+                elif err > MAX_KEPT_SCALE_ERROR:
+                    # Web Mercator at 46 deg N stretches distances by 44 %: keeping it would give
+                    # horizons that look plausible and are wrong. Its UTM zone is what a geographic
+                    # DEM of the same place is read into.
+                    dst_crs = utm_crs_for((w + e) / 2, (s + n) / 2)
+                    log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
+                                "%.0f %%): reprojected to %s, in which coordinates are now given; "
+                                "pass --crs to choose another metric CRS", path.name,
+                                _crs_name(src_crs) or src_crs.name, 100 * err,
+                                100 * MAX_KEPT_SCALE_ERROR, _crs_name(dst_crs))
                 else:
                     log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
                                 "%.1f %%): horizons are distorted by as much; pass --crs with a "
@@ -299,8 +318,11 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
             reproject(np.where(np.isfinite(z), z, np.nan), out, src_transform=transform,
                       src_crs=src.crs, dst_transform=dst_transform, dst_crs=dst_crs.to_wkt(),
                       resampling=Resampling.bilinear, src_nodata=np.nan, dst_nodata=np.nan)
-            # Trim the all-NaN wedges a reprojection leaves at the borders.
-            z, dst_transform = _trim_nan_border(out, dst_transform)
+            # Trim by where the source raster lies, not by where heights are: the DEM's own voids
+            # (7 % of an SRTM tile, some along its edges) are holes to fill, not border to cut.
+            footprint = _source_footprint(src.crs, transform, z.shape, dst_crs.to_wkt(),
+                                          dst_transform, (h, w))
+            z, dst_transform = _trim_to_footprint(out, footprint, dst_transform, path.name)
             transform = dst_transform
             log.info("reprojected %s from %s to %s", path.name, _crs_name(src_crs), _crs_name(dst_crs))
     voids = _fill_voids(z, fill_max_cells)
@@ -310,23 +332,51 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
               body=body)
     xmin, ymin, xmax, ymax = dem.bounds
     dem.scale_error = scale_error(dst_crs, (xmin, ymin, xmax, ymax))
+    if crs is not None and dem.scale_error > MAX_SCALE_ERROR:
+        # The user's choice is kept, but not silently: it bends every horizon by this much.
+        log.warning("%s: the requested CRS %s stretches distances by up to %.2f %% over the DEM (more "
+                    "than %.1f %%): horizons are distorted by as much", path.name,
+                    dem.crs_name or dst_crs.name, 100 * dem.scale_error, 100 * MAX_SCALE_ERROR)
     return dem
 
 
-def _trim_nan_border(z: np.ndarray, transform):
-    """Largest axis-aligned rectangle trimming rows/columns that are mostly NaN at the borders."""
+def _source_footprint(src_crs, src_transform, src_shape, dst_crs, dst_transform, dst_shape):
+    """Boolean (ny, nx) mask of the destination cells whose centre falls on the source raster,
+    whatever the source holds there (its no-data included)."""
+    from rasterio.warp import Resampling, reproject
+
+    ones = np.ones(src_shape, np.uint8)
+    fp = np.zeros(dst_shape, np.uint8)
+    # Nearest on an all-ones raster with no source nodata: a cell is 1 exactly where the warper
+    # found a source pixel under it, i.e. inside the source extent; 0 is the warp's own wedge.
+    reproject(ones, fp, src_transform=src_transform, src_crs=src_crs, src_nodata=None,
+              dst_transform=dst_transform, dst_crs=dst_crs, dst_nodata=0,
+              resampling=Resampling.nearest)
+    return fp.astype(bool)
+
+
+def _trim_to_footprint(z: np.ndarray, footprint: np.ndarray, transform, name: str = "DEM"):
+    """Crop a reprojected grid to a north-up rectangle lying wholly inside the source footprint.
+
+    A reprojection turns the source's rectangle into a rotated or curved shape and leaves empty
+    wedges around it; the crop removes them. Only ``footprint`` decides the crop, never NaN in
+    ``z``: voids inside the footprint stay in the grid, to be filled. Each step drops the edge row or
+    column with the largest share outside the footprint, until every edge line lies fully inside
+    (no height is invented beyond the source). Returns the cropped copy of ``z`` and its transform.
+    """
     from rasterio.transform import Affine
 
-    valid = np.isfinite(z)
-    r0, r1, c0, c1 = 0, z.shape[0], 0, z.shape[1]
-    # Shrink the side whose edge line has the most voids until every edge line is >= 99 % valid.
-    for _ in range(sum(z.shape)):
+    fp = footprint
+    r0, r1, c0, c1 = 0, fp.shape[0], 0, fp.shape[1]
+    for _ in range(sum(fp.shape)):
+        if r1 - r0 < 2 or c1 - c0 < 2:
+            break
         edges = {
-            "top": valid[r0, c0:c1].mean(), "bottom": valid[r1 - 1, c0:c1].mean(),
-            "left": valid[r0:r1, c0].mean(), "right": valid[r0:r1, c1 - 1].mean(),
+            "top": fp[r0, c0:c1].mean(), "bottom": fp[r1 - 1, c0:c1].mean(),
+            "left": fp[r0:r1, c0].mean(), "right": fp[r0:r1, c1 - 1].mean(),
         }
         side = min(edges, key=edges.get)
-        if edges[side] >= 0.99 or r1 - r0 < 3 or c1 - c0 < 3:
+        if edges[side] == 1.0:
             break
         if side == "top":
             r0 += 1
@@ -336,6 +386,16 @@ def _trim_nan_border(z: np.ndarray, transform):
             c0 += 1
         else:
             c1 -= 1
+    if r1 - r0 < 2 or c1 - c0 < 2 or not fp[r0:r1, c0:c1].all():
+        raise DemError(f"{name}: once reprojected, no north-up rectangle of at least 2 x 2 cells lies "
+                       "wholly inside the DEM (its footprint in the target CRS is too thin, too rotated "
+                       "or not convex): pass --crs with a CRS whose north is close to the DEM's")
+    kept = (r1 - r0) * (c1 - c0) / max(int(fp.sum()), 1)
+    # A rotated target CRS can keep much less than the source covers: say so rather than shrink
+    # the work area silently.
+    (log.warning if kept < 0.8 else log.info)(
+        "%s: the reprojected DEM is cropped to %d x %d cells, %.1f %% of the source's footprint",
+        name, c1 - c0, r1 - r0, 100 * kept)
     t = transform @ Affine.translation(c0, r0)
     return z[r0:r1, c0:c1].copy(), t
 

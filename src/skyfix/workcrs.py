@@ -7,8 +7,9 @@ east-west distances by 5 % at Jezero's 18.4 deg N). Where the DEM's own CRS is g
 projected with more distortion than that on another body than Earth, the DEM is reprojected to a
 transverse Mercator on its body, centred on the DEM (conformal, scale 1 on its central meridian:
 well under 0.1 % within ~90 km of it). On Earth a geographic DEM goes to its UTM zone, as it always
-has; a distorted projected Earth DEM is kept (its coordinates are the user's) with a warning that
-gives the figure and says to pass ``--crs``.
+has; a projected Earth DEM that stretches distances by 0.1-1 % is kept (its coordinates are the
+user's) with a warning that gives the figure and says to pass ``--crs``; beyond 1 % (Web Mercator:
+44 % at 46 deg N) it goes to its UTM zone too, with a warning (``skyfix.dem.MAX_KEPT_SCALE_ERROR``).
 """
 
 from __future__ import annotations
