@@ -25,10 +25,18 @@ def simulated(tmp_path_factory):
     return dem, trav
 
 
-def test_a_simulated_traverse_is_fused_within_the_truth(simulated, tmp_path):
+@pytest.fixture(scope="module")
+def fused(simulated, tmp_path_factory):
+    """The simulated traverse fused once (the tests that rerun into it copy it first)."""
     dem, trav = simulated
-    out = tmp_path / "out"
+    out = tmp_path_factory.mktemp("fused") / "out"
     r = run("traverse", trav, "--dem", dem, "-o", out, "--detector", "dp")
+    return out, r
+
+
+def test_a_simulated_traverse_is_fused_within_the_truth(simulated, fused):
+    dem, trav = simulated
+    out, r = fused
     assert r.exit_code == 0, r.output
     assert "stop 4/4" in r.output
     rows = [json.loads(line) for line in (out / "stops.jsonl").read_text().splitlines()]
@@ -117,3 +125,167 @@ def test_a_traverse_rendered_from_a_world_that_is_not_the_map(tmp_path):
     assert pe == pytest.approx([3.0, 3.0])
     r = run("simulate-traverse", dem, "-o", tmp_path / "u", "--map-errors", "--world-dem", dem)
     assert r.exit_code == 2 and "not both" in r.output
+
+
+def _copy(src, dst):
+    import shutil
+
+    shutil.copytree(src, dst)
+    return dst
+
+
+def _files(folder):
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}
+
+
+def test_a_rerun_with_other_inputs_or_options_is_refused_and_keeps_the_output(simulated, fused, tmp_path):
+    """A rerun resumes only the run that made -o (run.json): another DEM, other options or
+    another traverse are refused before any stop, naming what differs, and the output stays as
+    it was (it used to be reported as this run's result, exit 0)."""
+    import numpy as np
+    import rasterio
+
+    dem, trav = simulated
+    out = _copy(fused[0], tmp_path / "out")
+    before = _files(out)
+    other_dem = tmp_path / "other.tif"  # the same place, heights 0.5 m higher
+    with rasterio.open(dem) as src:
+        prof, z = src.profile, src.read(1)
+    with rasterio.open(other_dem, "w", **prof) as dst:
+        dst.write((z + np.asarray(0.5, z.dtype)).astype(z.dtype), 1)
+    other_trav = _copy(trav, tmp_path / "t2")
+    meta = json.loads((other_trav / "traverse.json").read_text())
+    meta["start"]["x"] += 5.0
+    (other_trav / "traverse.json").write_text(json.dumps(meta))
+    for args, says in [
+            ((trav, "--dem", other_dem), "the DEM (--dem, sha256)"),
+            ((trav, "--dem", dem, "--min-confidence", 0.9), "--min-confidence: 0.5 there, 0.9 now"),
+            ((trav, "--dem", dem, "--dem-sigma-m", 0), "--dem-sigma-m: 2.0 there, 0.0 now"),
+            ((trav, "--dem", dem, "--leg-length-m", 200), "leg length"),
+            ((trav, "--dem", dem, "--detector", "fuse"), "--detector: 'dp' there, 'fuse' now"),
+            ((other_trav, "--dem", dem), "the start (traverse.json)")]:
+        r = run("traverse", *args, "-o", out, "--no-plot")
+        assert r.exit_code == 2, (args, r.output)
+        assert "made with other inputs or options" in r.output and says in r.output, r.output
+        assert "--overwrite" in r.output and "Traceback" not in r.output
+        assert "stop 1/4" not in r.output
+        assert _files(out) == before
+    # the same inputs, options spelt otherwise (the default detector named), still resume
+    r = run("traverse", trav, "--dem", dem, "-o", out, "--no-plot", "--detector", "dp")
+    assert r.exit_code == 0, r.output
+    assert "stop 1/4" not in r.output and (out / "stops.jsonl").read_bytes() == before["stops.jsonl"]
+
+
+def test_traverse_writes_only_into_its_own_output_folder(simulated, fused, tmp_path):
+    """A non-empty folder that is no traverse output is refused, --overwrite or not (it put
+    stops.jsonl into an acquisition folder), and so is an output that does not say what made it
+    (written before run.json), unless --overwrite."""
+    dem, trav = simulated
+    acq = _copy(trav / "stop_000", tmp_path / "acq")
+    before = _files(acq)
+    for extra in ((), ("--overwrite",)):
+        r = run("traverse", trav, "--dem", dem, "-o", acq, "--no-plot", *extra)
+        assert r.exit_code == 2 and "is not empty and is not a traverse output" in r.output, r.output
+        assert _files(acq) == before
+    r = run("traverse", trav, "--dem", dem, "-o", trav, "--no-plot")  # its own input folder
+    assert r.exit_code == 2 and "is not a traverse output" in r.output
+    old = _copy(fused[0], tmp_path / "old")
+    (old / "run.json").unlink()
+    r = run("traverse", trav, "--dem", dem, "-o", old, "--no-plot")
+    assert r.exit_code == 2 and "does not record what made it" in r.output
+    assert "--overwrite" in r.output and not (old / "run.json").exists()
+
+
+@pytest.mark.parametrize("spoil, says", [
+    (lambda t: (t / "stop_002" / "acquisition.json").write_text("{bad"),
+     "stop 'stop_002' ({t}/stop_002): {t}/stop_002/acquisition.json is not valid JSON"),
+    (lambda t: (t / "stop_001" / "pano.png").unlink(),
+     "stop 'stop_001' ({t}/stop_001): image pano.png named in"),
+    (lambda t: (t / "traverse.json").write_text(json.dumps(
+        {**json.loads((t / "traverse.json").read_text()),
+         "start": {"x": 0, "y": 0, "heading_deg": 0, "position_sigma_m": 2, "heading_sigma_deg": 1}})),
+     "the traverse's start (0.0, 0.0) is outside the DEM"),
+])
+def test_a_broken_stop_or_a_start_off_the_dem_is_refused_before_the_first_stop(simulated, tmp_path,
+                                                                              spoil, says):
+    """Once found only at the stop (update none, an operator request, exit 0)."""
+    dem, trav = simulated
+    t = _copy(trav, tmp_path / "t")
+    spoil(t)
+    r = run("traverse", t, "--dem", dem, "-o", tmp_path / "o", "--no-plot")
+    assert r.exit_code == 2, r.output
+    assert says.format(t=t) in r.output and "Traceback" not in r.output
+    assert "stop 1/4" not in r.output and not (tmp_path / "o").exists()
+
+
+def _sim(dem, out, *extra):
+    return run("simulate-traverse", dem, "-o", out, "--length-m", 50, "--stop-spacing-m", 50,
+               "--mode", "panorama", "--pano-size", 256, 64, *extra)
+
+
+def test_simulate_traverse_resumes_only_with_the_same_options(tmp_path):
+    """Rerun with another seed, it kept the old stops' images beside new odometry and truth (km
+    apart); now refused, naming what differs; --overwrite starts afresh, stops and truth agreeing."""
+    dem = shared_dem_path("south_glacier_20m")
+    out = tmp_path / "s"
+    r = _sim(dem, out, "--seed", 0)
+    assert r.exit_code == 0, r.output
+    before = _files(out)
+    r = _sim(dem, out, "--seed", 7, "--heading-drift-deg-per-100m", 5)
+    assert r.exit_code == 2, r.output
+    assert "--seed: 0 there, 7 now" in r.output
+    assert "--heading-drift-deg-per-100m: 0.5 there, 5.0 now" in r.output
+    assert _files(out) == before
+    r = _sim(dem, out, "--seed", 0)  # the same options: resumed, nothing rendered again
+    assert r.exit_code == 0, r.output
+    assert _files(out) == before
+    r = _sim(dem, out, "--seed", 7, "--overwrite")
+    assert r.exit_code == 0, r.output
+    truth = [json.loads(line) for line in (out / "truth.jsonl").read_text().splitlines()]
+    assert truth != [json.loads(line) for line in before["truth.jsonl"].decode().splitlines()]
+    for k, t in enumerate(truth):
+        acq = json.loads((out / f"stop_{k:03d}" / "acquisition.json").read_text())
+        assert math.hypot(acq["truth"]["x"] - t["x"], acq["truth"]["y"] - t["y"]) < 1e-6
+    foreign = tmp_path / "f"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    r = _sim(dem, foreign, "--overwrite")
+    assert r.exit_code == 2 and "is not a simulated traverse" in r.output
+    assert [p.name for p in foreign.iterdir()] == ["notes.txt"]
+
+
+@pytest.mark.parametrize("cond, says", [
+    ("1=nonsense:1", "unknown condition 'nonsense': choose from dust"),
+    ("1=dust:2", "dust strength must be in [0, 1], got 2.0"),
+    ("5=dust", "stop conditions for stops [5]: the traverse has stops 0-2"),
+])
+def test_a_bad_stop_condition_is_refused_before_anything_is_simulated(tmp_path, cond, says):
+    """Found only at that stop, after the stops before it were written."""
+    dem = shared_dem_path("south_glacier_20m")
+    r = run("simulate-traverse", dem, "-o", tmp_path / "s", "--length-m", 100, "--stop-spacing-m", 50,
+            "--mode", "panorama", "--pano-size", 256, 64, "--stop-conditions", cond)
+    assert r.exit_code == 2 and says in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "s").exists()
+    r = run("evaluate", "--dem", dem, "--scenario", "traverse", "--length-m", 100,
+            "--stop-spacing-m", 50, "--stop-conditions", cond, "-o", tmp_path / "ev")
+    assert r.exit_code == 2 and says in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "ev").exists()
+
+
+def test_a_stop_whose_images_show_no_skyline_is_still_met_at_run_time(simulated, tmp_path):
+    """Not an input error: the stop loads, the run asks the operator and goes on (exit 0)."""
+    import cv2
+    import numpy as np
+
+    dem, trav = simulated
+    t = tmp_path / "t"
+    _copy(trav / "stop_000", t / "stop_000")
+    meta = json.loads((trav / "traverse.json").read_text())
+    (t / "traverse.json").write_text(json.dumps({"stops": ["stop_000"], "start": meta["start"]}))
+    img = cv2.imread(str(t / "stop_000" / "pano.png"))
+    cv2.imwrite(str(t / "stop_000" / "pano.png"), np.full_like(img, 128))  # no edge anywhere
+    r = run("traverse", t, "--dem", dem, "-o", tmp_path / "o", "--no-plot")
+    assert r.exit_code == 0, r.output
+    row = json.loads((tmp_path / "o" / "stops.jsonl").read_text())
+    assert row["update"] == "none" and "no usable skyline" in row["operator_request"]["reason"]

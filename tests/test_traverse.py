@@ -261,3 +261,75 @@ def test_the_operator_is_asked_when_the_owed_fix_keeps_failing_though_headings_a
     asked = [k for k, r in enumerate(rows) if r["operator_request"]]
     assert asked == [12, 15]  # every third fix not taken
     assert "3 position fixes in a row not taken" in rows[12]["operator_request"]["reason"]
+
+
+def test_an_output_resumes_only_the_run_that_made_it(tmp_path):
+    """run.json, written before the first stop, holds what made the output; a rerun with another
+    traverse, other settings or other inputs is refused naming them, the output untouched;
+    overwrite starts afresh; a folder that is no traverse output is never written to."""
+    from skyfix.errors import OutputExistsError
+
+    class Stop(Exception):
+        pass
+
+    def interrupt(k, d):
+        raise Stop
+
+    m, _ = _scripted(bad={2})
+    out = tmp_path / "o"
+    with pytest.raises(Stop):
+        run_traverse(_straight(6), m, out, inputs={"dem_sha256": "a" * 64}, on_stop=interrupt)
+    rec = json.loads((out / "run.json").read_text())
+    assert rec["params"]["dem_sha256"] == "a" * 64 and rec["params"]["stops"][0] == "s000"
+    before = (out / "stops.jsonl").read_bytes()
+    step40 = _straight(6, step=40.0)
+    for kw, says in [(dict(trav=step40), "the odometry (sha256)"),
+                     (dict(trav=_straight(7)), "the traverse's stops"),
+                     (dict(config=TraverseConfig(min_confidence=0.9)),
+                      "--min-confidence: 0.5 there, 0.9 now"),
+                     (dict(inputs={"dem_sha256": "b" * 64}),
+                      "the DEM (--dem, sha256): aaaaaaaaaaaa there, bbbbbbbbbbbb now"),
+                     (dict(inputs={}), "the DEM")]:
+        args = {"trav": _straight(6), "config": TraverseConfig(), "inputs": {"dem_sha256": "a" * 64},
+                **kw}
+        with pytest.raises(OutputExistsError, match="made with other inputs or options") as e:
+            run_traverse(args["trav"], m, out, config=args["config"], inputs=args["inputs"])
+        assert says in str(e.value)
+        assert (out / "stops.jsonl").read_bytes() == before
+    rows = run_traverse(_straight(6), m, out, inputs={"dem_sha256": "a" * 64})  # the same: resumed
+    assert len(rows) == 6 and (out / "stops.jsonl").read_bytes().startswith(before)
+    rows = run_traverse(step40, m, out, inputs={"dem_sha256": "b" * 64}, overwrite=True)
+    assert rows[1]["y"] == pytest.approx(40.0, abs=1.0)  # a heading after one step of 40 m, not 50
+    assert json.loads((out / "run.json").read_text())["params"]["dem_sha256"] == "b" * 64
+    other = tmp_path / "acq"
+    other.mkdir()
+    (other / "acquisition.json").write_text("{}")
+    with pytest.raises(OutputExistsError, match="is not a traverse output"):
+        run_traverse(_straight(3), m, other, overwrite=True)
+    assert sorted(p.name for p in other.iterdir()) == ["acquisition.json"]
+
+
+def test_check_stops_names_a_broken_stop_and_check_start_a_start_off_the_dem(tmp_path):
+    """Checked before the first stop; what the images show is left to the run (an empty image
+    passes here)."""
+    from skyfix.errors import AcquisitionError, OutsideDemError
+    from skyfix.traverse.inputs import check_start, check_stops
+    from conftest import plane_dem
+
+    root = _folder(tmp_path, [GOOD, GOOD])
+    for k in range(3):
+        (root / f"stop_{k:03d}" / "acquisition.json").write_text(json.dumps(
+            {"panorama": {"image": "pano.png"}, "camera_height_m": 1.5}))
+        (root / f"stop_{k:03d}" / "pano.png").write_bytes(b"")
+    trav = read_traverse(root)
+    assert len(check_stops(trav)) == 3
+    (root / "stop_001" / "pano.png").unlink()
+    with pytest.raises(AcquisitionError, match="stop 'stop_001' .*image pano.png named in"):
+        check_stops(trav)
+    dem = plane_dem(1000.0, 20.0)
+    check_start(trav, dem)  # no start: nothing to check
+    trav.start = Start(500.0, 500.0, 0.0, 1.0, 1.0)
+    check_start(trav, dem)
+    trav.start = Start(5000.0, 500.0, 0.0, 1.0, 1.0)
+    with pytest.raises(OutsideDemError, match="the traverse's start .* is outside the DEM.*check 'start'"):
+        check_start(trav, dem)

@@ -33,19 +33,27 @@ log = logging.getLogger("skyfix.stage")  # one line per stop at the default verb
                    "allows); 0: the DEM is the world [default: 2].")
 @detector_option
 @click.option("--no-plot", is_flag=True, help="Do not draw track.png.")
+@click.option("--overwrite", is_flag=True,
+              help="Start afresh in an -o that an earlier traverse run wrote (its stops.jsonl, "
+                   "track.geojson, track.png and run.json are deleted, once every input is checked).")
 def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence, max_rejections,
-             dem_sigma_m, detector, no_plot):
+             dem_sigma_m, detector, no_plot, overwrite):
     """Fuse a traverse's odometry with skyline headings and position fixes.
 
-    Rerun with the same -o to resume at the first stop not yet written.
+    Rerun with the same -o to resume at the first stop not yet written: -o/run.json records the
+    inputs and options that made the output, and a rerun with others is refused (--overwrite
+    starts afresh).
     """
     import math
     from pathlib import Path
 
     from .._io import check_folder_output
+    from ..detect.options import DEFAULT_METHOD
     from ..progress import stage
-    from ..traverse import (TraverseConfig, convergence_function, read_done, read_traverse,
-                            run_traverse)
+    from ..traverse import TraverseConfig, convergence_function, read_traverse, run_traverse
+    from ..traverse.inputs import check_start, check_stops
+    from ..traverse.output import digest
+    from ..traverse.run import check_output
     from ..traverse.measure import acquisition_measure
 
     if not (0.0 <= min_confidence <= 1.0):
@@ -62,7 +70,7 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
     out = check_folder_output(out)
     with stage("inputs checked") as st:
         trav = read_traverse(traverse_dir)
-        read_done(Path(out) / "stops.jsonl", trav.stops)  # another traverse's output is refused now
+        check_stops(trav)
         db = None
         if db_path is not None:
             from ..database import open_database
@@ -74,9 +82,19 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
         from ..stack import load_dems
 
         dem = load_dems(list(dem_paths))
-        st.result = f"{len(trav.stops)} stops"
-    cfg = TraverseConfig(min_confidence=min_confidence, max_rejections=max_rejections,
-                         leg_length_m=leg_length_m)
+        check_start(trav, dem)
+        cfg = TraverseConfig(min_confidence=min_confidence, max_rejections=max_rejections,
+                             leg_length_m=leg_length_m)
+        # what the measurements depend on beyond the traverse and cfg; the DEM and the database
+        # by content, so that a moved file still resumes and a replaced one does not
+        inputs = {"dem_sha256": dem.checksum,
+                  "database_sha256": None if db is None else digest(db.attrs.get("build") or db.attrs),
+                  "detector": detector or DEFAULT_METHOD, "dem_sigma_m": dem_sigma_m}
+        about = {"traverse": str(traverse_dir), "dem": [str(p) for p in dem_paths],
+                 "database": None if db_path is None else str(db_path)}
+        action = check_output(trav, out, config=cfg, inputs=inputs, overwrite=overwrite)
+        st.result = f"{len(trav.stops)} stops" + {"resume": ", resuming",
+                                                   "replace": ", starting afresh"}.get(action, "")
 
     convergence = convergence_function(dem.crs_wkt)
 
@@ -91,8 +109,8 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
 
     measure = acquisition_measure(trav, dem, db=db, pose_config=PoseConfig(map_sigma_m=dem_sigma_m),
                                   detector=detector)
-    rows = run_traverse(trav, measure, out, config=cfg,
-                        convergence=convergence, on_stop=progress)
+    rows = run_traverse(trav, measure, out, config=cfg, convergence=convergence, on_stop=progress,
+                        inputs=inputs, about=about, overwrite=overwrite)
     write_track(Path(out), rows, dem.crs_wkt)
     if not no_plot:
         from ..traverse.plots import plot_track
@@ -127,7 +145,8 @@ def write_track(out, rows, crs_wkt) -> None:
 @click.command("simulate-traverse")
 @click.argument("dem", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False),
-              help="Traverse folder to write (rerun to resume: rendered stops are kept).")
+              help="Traverse folder to write (rerun with the same options to resume: rendered "
+                   "stops are kept; -o/simulation.json records the options).")
 @traverse_path_options
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--distance-drift", type=float, default=0.02, show_default=True,
@@ -145,20 +164,40 @@ def write_track(out, rows, crs_wkt) -> None:
 @click.option("--world-dem", type=click.Path(dir_okay=False), default=None,
               help="Render the stops from this second DEM of the same place instead of DEM (the "
                    "path is still planned on DEM, the map).")
+@click.option("--overwrite", is_flag=True,
+              help="Start afresh in an -o that an earlier simulate-traverse wrote with other options "
+                   "(its stops, odometry, truth and traverse.json are deleted, once every option is "
+                   "checked).")
 def simulate_traverse(dem, out, length_m, stop_spacing_m, seed, distance_drift,
                       heading_drift_deg_per_100m, stop_conditions, mode, pano_size, leg_length_m,
-                      no_start, map_errors, world_dem):
-    """Simulate a traverse: stops with acquisitions, odometry with drift, and the truth."""
+                      no_start, map_errors, world_dem, overwrite):
+    """Simulate a traverse: stops with acquisitions, odometry with drift, and the truth.
+
+    Rerun with the same options to resume; other options into the same -o are refused (the stops
+    on disk are another simulation's), unless --overwrite.
+    """
+    import math
+
+    from .._io import check_folder_output, writing_to
     from ..dem import load_dem
-    from ..simulate import MapErrors, check_seed
+    from ..simulate import MapErrors, check_render_options, check_seed
     from ..traverse.simulate import parse_stop_conditions, simulate_traverse as _simulate
 
     check_seed(seed)
-    if not (0 <= distance_drift < 1) or heading_drift_deg_per_100m < 0:
-        raise ParameterError("drifts must be >= 0 (the distance drift a share below 1)")
+    if not (0 <= distance_drift < 1) or not (math.isfinite(heading_drift_deg_per_100m)
+                                             and heading_drift_deg_per_100m >= 0):
+        raise ParameterError(f"--distance-drift must be a share in [0, 1) and "
+                             f"--heading-drift-deg-per-100m a number >= 0, got {distance_drift} "
+                             f"and {heading_drift_deg_per_100m}")
+    if not (math.isfinite(leg_length_m) and leg_length_m > 0):
+        raise ParameterError(f"--leg-length-m must be a number of metres > 0, got {leg_length_m}")
+    # refused before the DEM is read (the simulation checks them all again)
+    check_render_options(mode=mode, camera="navcam", camera_height_m=1.5, tilt_deg=15.0,
+                         planet=None, seed=seed, pano_size=pano_size)
     conds = parse_stop_conditions(stop_conditions)
     if map_errors and world_dem:
         raise ParameterError("give --map-errors or --world-dem, not both")
+    check_folder_output(out)
     d = load_dem(dem)
     world = load_dem(world_dem, crs=d.crs_wkt) if world_dem else None  # the map's CRS: positions agree
 
@@ -166,10 +205,12 @@ def simulate_traverse(dem, out, length_m, stop_spacing_m, seed, distance_drift,
         if (k + 1) % 10 == 0 or k + 1 == n:
             log.info("stop %d/%d rendered", k + 1, n)
 
-    path = _simulate(d, out, length_m=length_m, stop_spacing_m=stop_spacing_m, seed=seed,
-                     distance_drift=distance_drift,
-                     heading_drift_deg_per_100m=heading_drift_deg_per_100m, stop_conditions=conds,
-                     mode=mode, pano_size=pano_size, with_start=not no_start,
-                     leg_length_m=leg_length_m, on_stop=progress, world=world,
-                     map_errors=MapErrors() if map_errors else None)
+    with writing_to(out):
+        path = _simulate(d, out, length_m=length_m, stop_spacing_m=stop_spacing_m, seed=seed,
+                         distance_drift=distance_drift,
+                         heading_drift_deg_per_100m=heading_drift_deg_per_100m,
+                         stop_conditions=conds, mode=mode, pano_size=pano_size,
+                         with_start=not no_start, leg_length_m=leg_length_m, on_stop=progress,
+                         world=world, map_errors=MapErrors() if map_errors else None,
+                         overwrite=overwrite)
     click.echo(f"traverse -> {path}", err=True)

@@ -68,12 +68,15 @@ def evaluate_traverse(dem_path, out, *, length_m=3000.0, stop_spacing_m=50.0, se
 
     out = Path(out)
     dem = load_dem(dem_path)
+    # OUT/traverse is resumed only when simulated with these same options; evaluate's own
+    # --overwrite does not reach it, so a refusal offers another -o alone
     simulate_traverse(dem, out / "traverse", length_m=length_m, stop_spacing_m=stop_spacing_m,
-                      seed=seed, stop_conditions=stop_conditions, mode=mode)
+                      seed=seed, stop_conditions=stop_conditions, mode=mode, afresh=None)
     trav = read_traverse(out / "traverse")
 
     convergence = convergence_function(dem.crs_wkt)
-    rows = run_traverse(trav, acquisition_measure(trav, dem), out / "result", convergence=convergence)
+    rows = run_traverse(trav, acquisition_measure(trav, dem), out / "result", convergence=convergence,
+                        inputs={"dem_sha256": dem.checksum}, afresh=None)
     dist, pe, he, ope, ohe = traverse_errors(rows, trav, convergence)
     fixes = [k for k, r in enumerate(rows) if r["update"] == "position"]
     upd = [r["update"] for r in rows]

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import AcquisitionError, OutsideDemError, ParameterError
 from .ekf import Odometry
 
 TRAVERSE_FILE = "traverse.json"
@@ -160,3 +160,36 @@ def read_traverse(root) -> Traverse:
         if len(truth) != len(stops):
             raise ParameterError(f"{tp}: {len(truth)} lines for {len(stops)} stops")
     return Traverse(root, list(stops), folders, odometry, start, truth, leg, meta)
+
+
+def check_stops(trav: Traverse) -> list:
+    """Load every stop's acquisition (its acquisition.json and that each image it names exists)
+    before the first stop is measured: a broken stop is the traverse's input error, to be
+    refused now, not a failed detection found hours into the run (a stop whose images hold no
+    skyline is no input error: the run meets it and asks the operator). Returns the
+    :class:`skyfix.formats.Acquisition` per stop."""
+    from ..formats import load_acquisition
+
+    acqs = []
+    for name, folder in zip(trav.stops, trav.folders):
+        try:
+            acqs.append(load_acquisition(folder))
+        except AcquisitionError as e:
+            raise AcquisitionError(f"stop '{name}' ({folder}): {str(e).splitlines()[0]}; fix or "
+                                   "replace the stop's acquisition, then run again") from None
+    return acqs
+
+
+def check_start(trav: Traverse, dem) -> None:
+    """Refuse a start fix (traverse.json) where ``dem`` has no height: every stop would then be
+    measured about a point the map does not hold."""
+    s = trav.start
+    if s is None:
+        return
+    try:
+        dem.require_inside(s.x, s.y, what="the traverse's start")
+    except OutsideDemError as e:
+        where = TRAVERSE_FILE if trav.root is None else Path(trav.root) / TRAVERSE_FILE
+        raise OutsideDemError(f"{e}: check 'start' in {where} (x, y in the "
+                              "DEM's work CRS, which `skyfix info DEM` prints) or give the DEM "
+                              "that covers the traverse") from None

@@ -27,10 +27,11 @@ acquisitions and on scripted measurements (the tests).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -39,8 +40,25 @@ import numpy as np
 from ..errors import SkyfixError
 from .ekf import CORROBORATION_CHI2, PoseFilter
 from .inputs import Traverse
+from .output import Kind, begin_folder, canonical, digest, plan_folder
 
 STOPS_FILE = "stops.jsonl"
+#: what made the output (:func:`run_params`), written before its first stop
+RUN_FILE = "run.json"
+
+#: a traverse output, for :mod:`.output`: the parameters' names as the CLI's messages give them
+OUTPUT = Kind(
+    record=RUN_FILE, what="a traverse output", files=(STOPS_FILE, "track.geojson", "track.png"),
+    folders=None, legacy=(STOPS_FILE,),
+    labels={"stops": "the traverse's stops", "odometry_sha256": "the odometry (sha256)",
+            "start": "the start (traverse.json)",
+            "acquisitions_sha256": "the stops' acquisitions (sha256)",
+            "dem_sha256": "the DEM (--dem, sha256)",
+            "database_sha256": "the database (--db, sha256 of its build parameters)",
+            "detector": "--detector", "dem_sigma_m": "--dem-sigma-m",
+            "leg_length_m": "the leg length (--leg-length-m, else traverse.json's)",
+            "min_confidence": "--min-confidence", "max_rejections": "--max-rejections",
+            "format_version": "the record's version"})
 
 
 @dataclass(frozen=True)
@@ -220,15 +238,77 @@ def _append(path: Path, rows: list[dict], d: dict) -> None:
     write_jsonl(path, rows)
 
 
+def _stop_identity(folder) -> list | None:
+    """A stop's acquisition as far as it decides the measurement, cheaply: its acquisition.json
+    byte for byte and the size of every image it names (hashing every image of a long traverse
+    would cost seconds at each start)."""
+    if folder is None:
+        return None
+    folder = Path(folder)
+    try:
+        raw = (folder / "acquisition.json").read_bytes()
+    except OSError:
+        return None
+    names = []
+    try:
+        d = json.loads(raw)
+        names = [f.get("image") for f in d.get("frames") or []] + [(d.get("panorama") or {}).get("image")]
+    except (ValueError, AttributeError, TypeError):
+        pass  # a broken acquisition is refused by its own check; its bytes still identify it
+    sizes = {n: (folder / n).stat().st_size for n in names
+             if isinstance(n, str) and (folder / n).is_file()}
+    return [hashlib.sha256(raw).hexdigest(), sizes]
+
+
+def run_params(trav: Traverse, config: TraverseConfig, inputs: dict | None = None) -> dict:
+    """What decides a traverse's output, recorded in ``run.json``: the traverse (its stops, the
+    odometry, the start, each stop's acquisition), every setting of ``config`` (the leg length as
+    used: ``config``'s, else the traverse's) and ``inputs``, what the measurements depend on that
+    the loop cannot see (the DEM's and database's checksums, the detector, the map's sigma)."""
+    cfg = asdict(config)
+    cfg["leg_length_m"] = config.leg_length_m or trav.leg_length_m
+    odo = [[o.forward_m, o.left_m, o.dheading_deg, np.asarray(o.cov).tolist()] for o in trav.odometry]
+    return canonical({
+        "stops": list(trav.stops), "odometry_sha256": digest(odo),
+        "start": None if trav.start is None else asdict(trav.start),
+        "acquisitions_sha256": digest([_stop_identity(f) for f in trav.folders]),
+        **cfg, **(inputs or {})})
+
+
+def check_output(trav: Traverse, out_dir, *, config: TraverseConfig = TraverseConfig(),
+                 inputs: dict | None = None, overwrite: bool = False,
+                 afresh: str | None = "pass --overwrite to start afresh") -> str:
+    """Refuse an ``out_dir`` that :func:`run_traverse` must not write (another run's output, a
+    folder that is no traverse output) before any work; returns ``new``, ``resume`` or
+    ``replace`` (``overwrite``). ``afresh``: how a refusal says to start afresh (None: no way
+    but another -o)."""
+    action = plan_folder(out_dir, OUTPUT, run_params(trav, config, inputs), overwrite=overwrite,
+                         afresh=afresh)
+    if action == "resume":
+        read_done(Path(out_dir) / STOPS_FILE, trav.stops)  # the lines themselves must fit too
+    return action
+
+
 def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseConfig = TraverseConfig(),
-                 convergence: Callable = lambda x, y: 0.0, on_stop: Callable | None = None) -> list[dict]:
+                 convergence: Callable = lambda x, y: 0.0, on_stop: Callable | None = None,
+                 inputs: dict | None = None, about: dict | None = None,
+                 overwrite: bool = False, afresh: str | None = "pass --overwrite to start afresh"
+                 ) -> list[dict]:
     """Fuse the traverse's odometry with the skyline measurements; returns the stop records (also
     in ``out_dir/stops.jsonl``, one line per stop, appended as each stop ends; an interrupted run
-    resumes at the first stop not written). ``convergence(x, y)`` [deg]: true minus grid north."""
+    resumes at the first stop not written). ``convergence(x, y)`` [deg]: true minus grid north.
+
+    ``out_dir/run.json`` records what made the output (:func:`run_params` with ``inputs``;
+    ``about`` beside it, not compared): a rerun resumes only an output made with the same, and
+    refuses any other (:func:`check_output`, ``afresh`` as there); ``overwrite`` starts afresh
+    instead.
+    """
     from ..north import grid_heading_from_true
 
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    action = check_output(trav, out_dir, config=config, inputs=inputs, overwrite=overwrite,
+                          afresh=afresh)
+    begin_folder(out_dir, OUTPUT, run_params(trav, config, inputs), action, about)
     path = out_dir / STOPS_FILE
     rows = read_done(path, trav.stops)
     leg_m = config.leg_length_m or trav.leg_length_m

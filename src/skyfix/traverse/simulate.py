@@ -19,6 +19,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..north import wrap_deg
 from .inputs import ODOMETRY_FILE, TRAVERSE_FILE, TRUTH_FILE
+from .output import Kind, begin_folder, plan_folder
 
 
 @dataclass(frozen=True)
@@ -72,14 +73,40 @@ def plan_path(dem, length_m: float, spacing_m: float, seed: int, *, margin_m: fl
 
 
 def parse_stop_conditions(items) -> dict:
-    """``["12=clouds:1", "20=dark"]`` -> {12: "clouds:1", 20: "dark"}."""
+    """``["12=clouds:1", "20=dark"]`` -> {12: "clouds:1", 20: "dark"}; the conditions' names and
+    strengths are checked here, before anything is simulated (the stop numbers, once the
+    traverse's length is known: :func:`simulate_traverse`)."""
+    from ..simulate import Conditions
+
     out = {}
     for it in items or ():
         k, sep, cond = str(it).partition("=")
         if not sep or not k.strip().isdigit() or not cond.strip():
             raise ParameterError(f"stop condition '{it}': write STOP=CONDITIONS, e.g. 12=clouds:1")
+        try:
+            Conditions.parse(cond)
+        except ParameterError as e:
+            # without the example, which names simulate's --conditions
+            raise ParameterError(f"stop condition '{it}': {str(e).split(' (e.g.')[0]}") from None
+        if int(k) in out:
+            raise ParameterError(f"stop {int(k)} has two --stop-conditions: give its conditions "
+                                 "once, comma-separated (e.g. 12=clouds:1,dust:0.5)")
         out[int(k)] = cond.strip()
     return out
+
+
+#: the simulation's parameters (``simulation.json``), for :mod:`.output`, named as the CLI's
+#: messages name them
+SIMULATION = Kind(
+    record="simulation.json", what="a simulated traverse",
+    files=(TRAVERSE_FILE, ODOMETRY_FILE, TRUTH_FILE), folders=r"stop_\d+",
+    legacy=(TRAVERSE_FILE, ODOMETRY_FILE, TRUTH_FILE, "stop_000"),
+    labels={"map_sha256": "the DEM (sha256)", "seed": "--seed", "length_m": "--length-m",
+            "stop_spacing_m": "--stop-spacing-m", "stop_conditions": "--stop-conditions",
+            "mode": "--mode", "pano_size": "--pano-size", "distance_drift": "--distance-drift",
+            "heading_drift_deg_per_100m": "--heading-drift-deg-per-100m",
+            "leg_length_m": "--leg-length-m", "start_sigmas": "the start (--no-start)",
+            "map_errors": "--map-errors", "world_sha256": "--world-dem (sha256)"})
 
 
 def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
@@ -87,11 +114,17 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
                       stop_conditions: dict | None = None, camera="navcam", mode="frames",
                       pano_size=(2048, 512), tilt_deg=15.0, camera_height_m=1.5, planet=None,
                       start_sigmas=(2.0, 1.0), with_start=True, leg_length_m=1000.0,
-                      map_errors=None, world=None, on_stop=None) -> Path:
+                      map_errors=None, world=None, on_stop=None, overwrite=False,
+                      afresh="pass --overwrite to start afresh") -> Path:
     """Write a traverse folder ``out`` (``docs/conventions.md``, "Traverse"): ``stop_NNN/``
     acquisitions, ``odometry.jsonl``, ``traverse.json`` (the start: the truth on the map blurred by
-    ``start_sigmas`` = (position [m], heading [deg]) 1-sigma), ``truth.jsonl``. A stop already
-    rendered is kept (rerunning resumes).
+    ``start_sigmas`` = (position [m], heading [deg]) 1-sigma), ``truth.jsonl``.
+
+    Every parameter is checked before ``out`` is touched. ``simulation.json`` records them before
+    the first stop is rendered: a rerun with the same ones resumes (a stop already rendered is
+    kept); one with others is refused, as is a non-empty ``out`` that is no simulated traverse,
+    unless ``overwrite`` (then what an earlier simulation wrote in ``out`` is deleted first).
+    ``afresh``: how a refusal tells the user to start afresh (None: no way but another -o).
 
     map_errors : render every stop from :func:`skyfix.simulate.world.world_dem` of ``dem`` with
         these errors (:class:`skyfix.simulate.MapErrors`), one world drawn from ``seed``;
@@ -103,7 +136,9 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
     """
     from ..formats import Truth
     from ..north import true_heading_deg
-    from ..simulate import check_seed, simulate_acquisition
+    from ..planets import resolve_planet
+    from ..simulate import as_conditions, check_render_options, check_seed, simulate_acquisition
+    from ..simulate.conditions import check_planet
     from ..simulate.world import recorded_map_offset, world_dem, world_record
     from .run import convergence_function
 
@@ -112,19 +147,58 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
     stop_conditions = dict(stop_conditions or {})
     if map_errors is not None and world is not None:
         raise ParameterError("give map errors or a world DEM, not both")
+    # refused now, not at the first stop (or the one with the condition) with stops on disk
+    check_render_options(mode=mode, camera=camera, camera_height_m=camera_height_m,
+                         tilt_deg=tilt_deg if mode == "frames" else 0.0, planet=planet, seed=seed,
+                         pano_size=pano_size)
+    for name, v, ok, want in (
+            ("distance drift", distance_drift, 0 <= distance_drift < 1, "a share in [0, 1)"),
+            ("heading drift", heading_drift_deg_per_100m, heading_drift_deg_per_100m >= 0,
+             "a finite number of deg / 100 m >= 0"),
+            ("leg length", leg_length_m, leg_length_m > 0, "a finite number of metres > 0")):
+        if not (math.isfinite(v) and ok):
+            raise ParameterError(f"the {name} must be {want}, got {v}")
+    pl = resolve_planet(planet, getattr(dem, "body", None))
+    conds = {k: as_conditions(c) for k, c in stop_conditions.items()}
+    for k, c in sorted(conds.items()):
+        try:
+            check_planet(c, pl.name if pl.name in ("earth", "mars") else "earth")
+        except ParameterError as e:
+            # check_planet's advice names simulate's --planet, which simulate-traverse lacks
+            raise ParameterError(f"stop {k}'s conditions ({c}): {str(e).split(':')[0]}, and this "
+                                 f"DEM is on {pl.name}: drop it") from None
     plan = plan_path(dem, length_m, stop_spacing_m, seed)
     n = plan.x.size
     bad = [k for k in stop_conditions if not 0 <= k < n]
     if bad:
-        raise ParameterError(f"stop conditions for stops {bad}: the traverse has stops 0-{n - 1}")
+        raise ParameterError(f"stop conditions for stops {bad}: the traverse has stops 0-{n - 1} "
+                             "(a stop every stop spacing along the length, from 0): renumber them "
+                             "or lengthen the traverse")
+    names = [f"stop_{k:03d}" for k in range(n)]
+    params = {"map_sha256": dem.checksum, "seed": seed, "length_m": length_m,
+              "stop_spacing_m": stop_spacing_m,
+              "stop_conditions": {names[k]: str(c) for k, c in sorted(conds.items())},
+              "mode": mode, "camera_height_m": camera_height_m, "planet": pl.to_attr(),
+              "distance_drift": distance_drift,
+              "heading_drift_deg_per_100m": heading_drift_deg_per_100m,
+              "leg_length_m": leg_length_m,
+              "start_sigmas": list(start_sigmas) if with_start else None,
+              "map_errors": None if map_errors is None else map_errors.to_dict(),
+              "world_sha256": None if world is None else world.checksum}
+    if mode == "frames":  # what the other mode ignores is not the simulation's
+        params.update(camera=camera if isinstance(camera, str) else repr(camera), tilt_deg=tilt_deg)
+    else:
+        params["pano_size"] = [int(v) for v in pano_size]
+    action = plan_folder(out, SIMULATION, params, overwrite=overwrite, afresh=afresh)
     rng = np.random.default_rng(seed + 1)
     sim_world = world_record(map_errors, seed, world)
     offset = recorded_map_offset(sim_world)
     render = dem
-    out.mkdir(parents=True, exist_ok=True)
+    begin_folder(out, SIMULATION, params, action,
+                 about={"map": getattr(dem, "source", ""),
+                        "world": None if world is None else getattr(world, "source", "")})
     convergence = convergence_function(dem.crs_wkt)
     conv = [convergence(x, y) for x, y in zip(plan.x, plan.y)]
-    names = [f"stop_{k:03d}" for k in range(n)]
     for k in range(n):
         folder = out / names[k]
         if not (folder / "acquisition.json").is_file():
