@@ -323,6 +323,12 @@ def test_plot_and_score_map_suffixes(tmp_path, dem_file, profile_json, stub_loca
     ({"attitude_prior": {"pitch_deg": None}}, "attitude_prior.pitch_deg"),
     ({"attitude_prior": {"roll_deg": "a"}}, "attitude_prior.roll_deg"),
     ({"attitude_prior": 5}, "attitude_prior must be an object"),
+    # misspelt fields were ignored and their values silently replaced by the defaults
+    ({"camera__dist__K1": -0.2}, "camera.distortion: unknown field 'K1'"),
+    ({"camera__k1": -0.2}, "camera: unknown field 'k1'"),
+    ({"attitude_prior": {"pitch": 5, "roll": 3}}, "attitude_prior: unknown fields 'pitch', 'roll'"),
+    ({"frame__tilt": 10}, "frames[0]: unknown field 'tilt'"),
+    ({"pano__hfov": 90}, "panorama: unknown field 'hfov'"),
 ])
 def test_impossible_acquisition_values_name_the_field(tmp_path, changes, field):
     root = write_acq(tmp_path / "acq", **changes)

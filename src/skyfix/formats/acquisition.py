@@ -15,7 +15,7 @@ import numpy as np
 from .._io import write_json
 from ..camera import Camera, Distortion
 from ..errors import AcquisitionError
-from .values import attitude_prior_field, camera_height_field, in_range, number_field
+from .values import attitude_prior_field, camera_height_field, in_range, known_fields, number_field
 
 
 ACQUISITION_FILE = "acquisition.json"
@@ -120,10 +120,15 @@ def _read_json(path: Path) -> dict:
     return data
 
 
+#: the fields of an acquisition's camera (conventions.md)
+CAMERA_FIELDS = ("width", "height", "fx", "fy", "cx", "cy", "distortion")
+
+
 def _parse_camera(d) -> Camera:
     if not isinstance(d, dict):
         raise AcquisitionError("acquisition.json: 'camera' must be an object")
     w = "camera"
+    known_fields(d, CAMERA_FIELDS, w)
     width = number_field(d, "width", w, positive=True)
     height = number_field(d, "height", w, positive=True)
     if width != int(width) or height != int(height):
@@ -131,6 +136,7 @@ def _parse_camera(d) -> Camera:
     dist = d.get("distortion") or {}
     if not isinstance(dist, dict):
         raise AcquisitionError("camera.distortion must be an object with k1, k2, p1, p2, k3")
+    known_fields(dist, ("k1", "k2", "p1", "p2", "k3"), "camera.distortion")
     dist_v = {k: number_field(dist, k, "camera.distortion", 0.0) for k in ("k1", "k2", "p1", "p2", "k3")}
     fx, fy = number_field(d, "fx", w, positive=True), number_field(d, "fy", w, positive=True)
     # The principal point of a real lens sits near the image centre (a few per cent off);
@@ -215,6 +221,7 @@ def load_acquisition(folder) -> Acquisition:
             where = f"frames[{i}]"
             if not isinstance(f, dict) or not isinstance(f.get("image"), str):
                 raise AcquisitionError(f"{where} must be an object with an 'image' file name")
+            known_fields(f, ("image", "pan_deg", "tilt_deg"), where)
             # tilt beyond +-90 deg points the camera backwards over the top, upside down: no
             # mast does that, and 400 is a typing or unit mistake
             tilt = in_range(number_field(f, "tilt_deg", where, 0.0), -90.0, 90.0, f"{where}.tilt_deg",
@@ -224,6 +231,8 @@ def load_acquisition(folder) -> Acquisition:
         if not isinstance(pano_raw, dict) or not isinstance(pano_raw.get("image"), str):
             raise AcquisitionError("acquisition.json: 'panorama' must be an object with an 'image'")
         w = "panorama"
+        known_fields(pano_raw, ("image", "azimuth_left_deg", "hfov_deg", "elevation_top_deg",
+                                "vfov_deg"), w)
         panorama = PanoramaSpec(
             pano_raw["image"],
             number_field(pano_raw, "azimuth_left_deg", w, -180.0),

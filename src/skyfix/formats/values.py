@@ -39,6 +39,16 @@ def number_field(obj: dict, key: str, where: str, default=None, *, positive=Fals
     return float(v)
 
 
+def known_fields(obj: dict, keys, where: str, err=AcquisitionError) -> None:
+    """Refuse a field of ``obj`` not among ``keys``, naming it and the known ones: a misspelt
+    field (``K1`` for ``k1``, ``pitch`` for ``pitch_deg``) would otherwise be ignored and its
+    value silently replaced by the default."""
+    unknown = [k for k in obj if k not in keys]
+    if unknown:
+        raise err(f"{where}: unknown field{'s' * (len(unknown) > 1)} {', '.join(map(repr, unknown))} "
+                  f"(its fields are {', '.join(keys)}): check the spelling")
+
+
 def in_range(v: float, lo: float, hi: float, where: str, why: str) -> float:
     """``v`` if ``lo <= v <= hi``, else an AcquisitionError naming the field ``where``."""
     if not lo <= v <= hi:
@@ -65,6 +75,7 @@ def attitude_prior_field(data: dict, where: str, err=AcquisitionError) -> tuple[
     if not isinstance(prior, dict):
         raise err(f"{where}attitude_prior must be an object with pitch_deg and roll_deg [deg], "
                   f"got {prior!r}")
+    known_fields(prior, ("pitch_deg", "roll_deg"), f"{where}attitude_prior", err)
     out = []
     for key in ("pitch_deg", "roll_deg"):
         v = prior.get(key, 0.0)
