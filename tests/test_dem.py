@@ -298,3 +298,49 @@ def test_mildly_distorted_earth_dem_is_kept_with_a_warning(caplog):
         dem = load_dem(path)
     assert dem.crs_name == "ESRI:102003" and dem.z.shape == (1100, 1100)
     assert 0.009 < dem.scale_error < 0.01 and "pass --crs" in caplog.text
+
+
+def _utm_tif(path, data, crs="EPSG:32611", **kw):
+    import rasterio
+    from rasterio.transform import from_origin
+
+    data = np.asarray(data)
+    if data.ndim == 2:
+        data = data[None]
+    with rasterio.open(path, "w", driver="GTiff", width=data.shape[2], height=data.shape[1],
+                       count=data.shape[0], dtype=data.dtype, crs=crs,
+                       transform=from_origin(500_000, 4_000_000, 30, 30), **kw) as dst:
+        dst.write(data)
+    return path
+
+
+def test_heights_no_terrain_has_are_refused(tmp_path):
+    """A fill value of 1e30 not marked as nodata was read as a 1e30 m mountain."""
+    z = np.full((8, 8), 1500.0, np.float32)
+    z[3, 3] = 1e30
+    with pytest.raises(DemError, match=r"height of 1e\+30 m.*nodata"):
+        load_dem(_utm_tif(tmp_path / "fill.tif", z))
+    z[3, 3] = -8_000.0  # the floor of Hellas on Mars is about this far below its datum
+    assert load_dem(_utm_tif(tmp_path / "deep.tif", z)).z[3, 3] == -8_000.0
+
+
+def test_complex_or_multiband_rasters_are_refused_or_said(tmp_path, caplog):
+    with pytest.raises(DemError, match="complex numbers"):
+        load_dem(_utm_tif(tmp_path / "c.tif", np.full((8, 8), 1 + 2j, np.complex64)))
+    two = np.stack([np.full((8, 8), 100.0, np.float32), np.full((8, 8), 900.0, np.float32)])
+    with caplog.at_level("WARNING", logger="skyfix.dem"):
+        dem = load_dem(_utm_tif(tmp_path / "two.tif", two))
+    assert np.all(dem.z == 100.0) and "2 bands: its heights are taken from band 1" in caplog.text
+
+
+def test_an_image_without_georeferencing_is_refused_without_rasterio_s_warning(tmp_path):
+    import warnings
+
+    import cv2
+
+    png = tmp_path / "frame.png"
+    cv2.imwrite(str(png), np.full((8, 8), 7, np.uint8))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any warning escaping would fail here
+        with pytest.raises(DemError, match="has no CRS"):
+            load_dem(png)

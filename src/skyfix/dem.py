@@ -25,6 +25,8 @@ log = logging.getLogger(__name__)
 #: its UTM zone; between :data:`~skyfix.workcrs.MAX_SCALE_ERROR` (0.1 %) and this it is kept with a
 #: warning. 1 % of a 5 km sight line lowers a ridge 1000 m above the camera by 0.1 deg.
 MAX_KEPT_SCALE_ERROR = 0.01
+#: [m] largest height from the datum a DEM may hold (beyond: a fill value or a unit mistake)
+MAX_ABS_HEIGHT_M = 100_000.0
 
 
 @dataclass(frozen=True)
@@ -241,8 +243,14 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         raise DemError(f"DEM file {path} does not exist")
     if fill_max_cells < 0:
         raise ParameterError("fill_max_cells must be >= 0")
+    import warnings
+
     try:
-        src = rasterio.open(path)
+        with warnings.catch_warnings():
+            # an image without georeferencing makes rasterio warn, with its source line, before the
+            # clear refusal below says the same
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            src = rasterio.open(path)
     except RasterioIOError as e:
         raise DemError(f"cannot read {path} as a raster ({e}); give a GeoTIFF DEM") from None
     with src:
@@ -256,6 +264,10 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         if unit and unit.strip().lower() not in ("m", "metre", "meter", "metres", "meters"):
             raise DemError(f"{path}'s heights are in {unit!r}, not metres: convert them (e.g. "
                            f"`gdal_calc.py -A {path.name} --calc 'A*0.3048'` for feet) and retry")
+        if np.dtype(src.dtypes[0]).kind == "c":
+            raise DemError(f"{path} holds complex numbers, not heights: give a DEM of real heights")
+        if src.count > 1:
+            log.warning("%s has %d bands: its heights are taken from band 1", path.name, src.count)
         band = src.read(1, masked=True).astype(np.float64)
         z = band.filled(np.nan)
         z[~np.isfinite(z)] = np.nan
@@ -263,6 +275,15 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         if scale not in (None, 1.0) or offset not in (None, 0.0):
             z = z * (scale if scale is not None else 1.0) + (offset or 0.0)
             log.info("%s: band scale %s and offset %s applied to the heights", path.name, scale, offset)
+        with np.errstate(invalid="ignore"):
+            extreme = np.nanmax(np.abs(z)) if np.isfinite(z).any() else 0.0
+        if extreme > MAX_ABS_HEIGHT_M:
+            # Olympus Mons stands 22 km above the Martian datum, the Mariana trench 11 km below
+            # sea level: a height beyond 100 km is a fill value or a unit mistake, not terrain
+            raise DemError(f"{path} holds a height of {extreme:.3g} m, beyond the +-"
+                           f"{MAX_ABS_HEIGHT_M / 1000:g} km any terrain lies from its datum: mark its "
+                           "fill value as nodata (e.g. `gdal_edit.py -a_nodata VALUE`) or convert its "
+                           "units to metres")
         transform = src.transform
         body = planet_from_crs(src_crs)
         if crs is not None:

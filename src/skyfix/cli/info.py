@@ -74,12 +74,12 @@ def describe_dem(path) -> dict:
     from ..dem import load_dem
     from ..workcrs import geographic_bounds, scale_error
 
+    dem = load_dem(path)  # first: it refuses what is no DEM with one clear line
     with rasterio.open(path) as src:
         native = CRS.from_user_input(src.crs.to_wkt()) if src.crs else None
         native_bounds = list(src.bounds)
         native_size = [src.width, src.height]
         native_res = [abs(src.transform.a), abs(src.transform.e)]
-    dem = load_dem(path)
     body = dem.body
     b = dem.bounds
     native_err = (scale_error(native, native_bounds) if native is not None and native.is_projected
