@@ -180,6 +180,9 @@ def test_a_prior_area_off_the_database_is_refused_before_detection(tmp_path, fil
     assert r.exit_code == 2, r.output
     assert "no database position lies inside the prior area" in r.output
     assert "spans x 300.0..500.0" in r.output and "Traceback" not in r.output
+    # a radius without a centre was ignored, yet recorded in the provenance as if used
+    r = _run("locate", acq, "--db", db_path, "--prior-radius-m", 50)
+    assert r.exit_code == 2 and "--prior-radius-m needs the disc's centre" in r.output, r.output
     # a disc between grid positions that holds none (the grid is 10 m)
     r = _run("locate", acq, "--db", db_path, "--prior-x", 405, "--prior-y", 405, "--prior-radius-m", 3)
     assert r.exit_code == 2 and "the nearest is 7.1 m away" in r.output, r.output

@@ -288,6 +288,10 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
                              "and --prior-radius-m")
     if db_path is not None and have_prior and prior_radius_m is None:
         raise ParameterError("a prior position needs --prior-radius-m")
+    if prior_radius_m is not None and not have_prior:
+        # it was ignored, and yet recorded in the fix's provenance as if the search had used it
+        raise ParameterError("--prior-radius-m needs the disc's centre: give --prior-x and "
+                             "--prior-y (or --prior-lon and --prior-lat)")
     if score_map is not None and db_path is None:
         raise ParameterError("--score-map needs --db (the map is the database's score)")
     dem_sigma_m = dem_sigma(dem_sigma_m)
