@@ -344,3 +344,30 @@ def test_an_image_without_georeferencing_is_refused_without_rasterio_s_warning(t
         warnings.simplefilter("error")  # any warning escaping would fail here
         with pytest.raises(DemError, match="has no CRS"):
             load_dem(png)
+
+
+def test_direction_error_is_how_far_grid_azimuths_miss_the_geodesic_ones():
+    """Independent reference: the geodesic azimuth (pyproj.Geod) of a 100 m step at each grid
+    azimuth, against that azimuth plus the meridian convergence, at one Sierra point in USA
+    Albers (equal-area, so directions turn where its two scales differ); a UTM zone turns none."""
+    import math
+
+    from pyproj import CRS, Geod, Transformer
+
+    from skyfix.north import meridian_convergence_deg
+    from skyfix.workcrs import direction_error_deg
+
+    c = CRS.from_user_input("ESRI:102003")
+    x0, y0 = -2016950.0, 241757.0
+    to_geo = Transformer.from_crs(c, c.geodetic_crs, always_xy=True)
+    conv = meridian_convergence_deg(c.to_wkt(), x0, y0)
+    lon0, lat0 = to_geo.transform(x0, y0)
+    worst = 0.0
+    for a in np.arange(0.0, 360.0, 1.0):
+        lon1, lat1 = to_geo.transform(x0 + 100 * math.sin(math.radians(a)),
+                                      y0 + 100 * math.cos(math.radians(a)))
+        az = Geod(ellps="GRS80").inv(lon0, lat0, lon1, lat1)[0]
+        worst = max(worst, abs((az - a - conv + 180.0) % 360.0 - 180.0))
+    assert worst == pytest.approx(0.556, abs=0.002)
+    assert direction_error_deg(c, (x0 - 1, y0 - 1, x0 + 1, y0 + 1), n=2) == pytest.approx(worst, abs=1e-3)
+    assert direction_error_deg("EPSG:32611", (300_000, 4_000_000, 400_000, 4_100_000)) < 1e-6

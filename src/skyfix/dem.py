@@ -17,7 +17,7 @@ import numpy as np
 
 from .errors import DemError, OutsideDemError, ParameterError
 from .planets import EARTH, planet_from_crs
-from .workcrs import MAX_SCALE_ERROR, geographic_bounds, local_tm_crs, scale_error
+from .workcrs import MAX_SCALE_ERROR, direction_error_deg, geographic_bounds, local_tm_crs, scale_error
 
 log = logging.getLogger(__name__)
 
@@ -318,11 +318,14 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                                 _crs_name(src_crs) or src_crs.name, 100 * err,
                                 100 * MAX_KEPT_SCALE_ERROR, _crs_name(dst_crs))
                 else:
+                    turn = direction_error_deg(src_crs, src.bounds)
                     log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
-                                "%.1f %%): horizons are distorted by as much; pass --crs with a "
+                                "%.1f %%)%s: horizons are distorted by as much; pass --crs with a "
                                 "conformal CRS centred on the area (its UTM zone) to avoid it",
                                 path.name, _crs_name(src_crs) or src_crs.name, 100 * err,
-                                100 * MAX_SCALE_ERROR)
+                                100 * MAX_SCALE_ERROR,
+                                f" and turns directions by up to {turn:.2f} deg (a narrow view's "
+                                "heading by as much)" if turn >= 0.01 else "")
         if not dst_crs.is_projected or abs(dst_crs.axis_info[0].unit_conversion_factor - 1.0) > 1e-9:
             raise DemError(f"target CRS {_crs_name(dst_crs) or dst_crs.name} is not projected in metres: "
                            "pass --crs with a metric projected CRS (e.g. a UTM zone)")
