@@ -289,3 +289,15 @@ def test_a_stop_whose_images_show_no_skyline_is_still_met_at_run_time(simulated,
     assert r.exit_code == 0, r.output
     row = json.loads((tmp_path / "o" / "stops.jsonl").read_text())
     assert row["update"] == "none" and "no usable skyline" in row["operator_request"]["reason"]
+
+
+def test_evaluate_traverse_writes_only_into_an_empty_folder_or_its_own_output(tmp_path):
+    """It wrote report.html, traverse/ and result/ into any folder."""
+    dem = shared_dem_path("south_glacier_20m")
+    theirs = tmp_path / "notes"
+    theirs.mkdir()
+    (theirs / "mine.txt").write_text("keep")
+    r = run("evaluate", "--dem", dem, "--scenario", "traverse", "--length-m", 100,
+            "--stop-spacing-m", 50, "-o", theirs)
+    assert r.exit_code == 2 and "not an earlier `evaluate --scenario traverse` output" in r.output
+    assert sorted(p.name for p in theirs.iterdir()) == ["mine.txt"]

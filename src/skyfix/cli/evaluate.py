@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import shlex
 import sys
+from pathlib import Path
 
 import click
 
 from ..detect.options import DEFAULT_METHOD, METHODS
-from ..errors import ParameterError
+from ..errors import OutputExistsError, ParameterError
 from .options import dem_sigma, detector_option, overwrite_option, traverse_path_options
 
 
@@ -68,6 +69,13 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
 
         check_seed(seed)
         conds = parse_stop_conditions(stop_conditions)
+        o = Path(out)
+        if o.exists() and (not o.is_dir() or (any(o.iterdir()) and not (
+                (o / "traverse").is_dir() or (o / "result").is_dir()))):
+            # a rerun into its own output resumes (traverse/ and result/ record what made them);
+            # any other folder is someone else's, and report.html would land in it
+            raise OutputExistsError(f"{out} is not an earlier `evaluate --scenario traverse` output "
+                                    "and not an empty folder: choose another -o")
         with writing_to(out):
             report = evaluate_traverse(dem_path, out, length_m=length_m, stop_spacing_m=stop_spacing_m,
                                        seed=seed, stop_conditions=conds,
