@@ -120,6 +120,11 @@ def _read_json(path: Path) -> dict:
     return data
 
 
+#: [deg] the widest field of view a pinhole camera (this model) may have
+MAX_PINHOLE_FOV_DEG = 170.0
+#: [deg] largest |pan| of a frame: a mast turns within a turn or two; beyond ten the value is a
+#: unit mistake (1e20 deg kept no direction at all)
+MAX_PAN_DEG = 3600.0
 #: the fields of an acquisition's camera (conventions.md)
 CAMERA_FIELDS = ("width", "height", "fx", "fy", "cx", "cy", "distortion")
 
@@ -139,6 +144,15 @@ def _parse_camera(d) -> Camera:
     known_fields(dist, ("k1", "k2", "p1", "p2", "k3"), "camera.distortion")
     dist_v = {k: number_field(dist, k, "camera.distortion", 0.0) for k in ("k1", "k2", "p1", "p2", "k3")}
     fx, fy = number_field(d, "fx", w, positive=True), number_field(d, "fy", w, positive=True)
+    for name, f, size in (("fx", fx, width), ("fy", fy, height)):
+        # a pinhole's field of view is 2 atan(size / 2f): 170 deg and more is no real lens of
+        # this model (a fisheye needs another), but a focal length in mm or m, not pixels
+        fov = 2.0 * math.degrees(math.atan(size / (2.0 * f)))
+        if fov >= MAX_PINHOLE_FOV_DEG:
+            raise AcquisitionError(
+                f"camera.{name} = {f:g} px gives a field of view of {fov:.1f} deg over {size:g} px: "
+                f"a pinhole camera sees less than {MAX_PINHOLE_FOV_DEG:g} deg; give the focal "
+                "length in pixels (focal length / pixel pitch)")
     # The principal point of a real lens sits near the image centre (a few per cent off);
     # shifted sensors move it further, but half an image outside the frame means another
     # image size or a unit mix-up, not a lens (pixel centres span -0.5 .. size - 0.5).
@@ -226,7 +240,9 @@ def load_acquisition(folder) -> Acquisition:
             # mast does that, and 400 is a typing or unit mistake
             tilt = in_range(number_field(f, "tilt_deg", where, 0.0), -90.0, 90.0, f"{where}.tilt_deg",
                              "mast tilt, up positive")
-            frames.append(Frame(f["image"], number_field(f, "pan_deg", where), tilt))
+            pan = in_range(number_field(f, "pan_deg", where), -MAX_PAN_DEG, MAX_PAN_DEG,
+                           f"{where}.pan_deg", "mast pan, clockwise from forward")
+            frames.append(Frame(f["image"], pan, tilt))
     else:
         if not isinstance(pano_raw, dict) or not isinstance(pano_raw.get("image"), str):
             raise AcquisitionError("acquisition.json: 'panorama' must be an object with an 'image'")
