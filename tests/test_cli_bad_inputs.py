@@ -656,10 +656,12 @@ def test_a_panorama_too_large_to_render_is_refused_before_any_work(tmp_path, dem
     ({"camera__fx": 1e-6}, "camera.fx = 1e-06 px gives a field of view of 180.0 deg"),
     ({"camera__fy": 8.0}, "camera.fy = 8 px gives a field of view of 178.2 deg"),
     ({"frame__pan_deg": 1e20}, "frames[0].pan_deg must be within -3600 to 3600"),
+    ({"frames": [{"image": "f.png", "pan_deg": 0.0}, {"image": "f.png", "pan_deg": 30.0}]},
+     "frames[1] and frames[0] both name f.png"),
 ])
-def test_a_focal_length_or_pan_in_the_wrong_units_is_refused(tmp_path, changes, field):
+def test_a_focal_length_pan_or_frame_that_cannot_be_is_refused(tmp_path, changes, field):
     """fx = 1e-6 px (a focal length in metres) made a profile of no observed bins, exit 0; a pan
-    of 1e20 deg keeps no direction."""
+    of 1e20 deg keeps no direction; one image named by two frames made a profile of copies."""
     with pytest.raises(SkyfixError) as e:
         load_acquisition(write_acq(tmp_path / "acq", **changes))
     assert field in str(e.value)

@@ -242,6 +242,10 @@ def load_acquisition(folder) -> Acquisition:
                              "mast tilt, up positive")
             pan = in_range(number_field(f, "pan_deg", where), -MAX_PAN_DEG, MAX_PAN_DEG,
                            f"{where}.pan_deg", "mast pan, clockwise from forward")
+            first = next((k for k, fr in enumerate(frames) if fr.image == f["image"]), None)
+            if first is not None:  # one picture at two pans made a 360 deg profile of copies
+                raise AcquisitionError(f"{where} and frames[{first}] both name {f['image']}: each "
+                                       "frame is its own image")
             frames.append(Frame(f["image"], pan, tilt))
     else:
         if not isinstance(pano_raw, dict) or not isinstance(pano_raw.get("image"), str):
