@@ -28,6 +28,14 @@ the band spans a navcam frame) were mapped and unmapped for every frame, fresh z
 time. At 8 MiB (trim 32 MiB): heading's faults 82 000 -> 32 000, 1.9-2.0 -> 1.7-1.9 s; locate
 8.4-9.0 -> 8.2-8.9 s, peak RSS 176-178 MB, anonymous 102-104 MB; heading's peak 144-155 -> 156-158
 MB, anonymous 70-80 -> 81-84 MB (16 MiB: the same time, tilted locate's peak 184 MB).
+
+16 MiB since `heading` reads its DEM before any image (the rough position is checked on it before
+detection, 2026-11-27): at 8 MiB that order took heading's faults from 22 000 to 118 000 and its
+system time from 0.07 to 0.29 s (1.83 -> 2.09 s on one core), detection's blocks now falling
+where the heap's top is trimmed; at 16 MiB 23 000 faults, and the three cases measured in turn
+(one core, load 0.6-1.2): heading 1.7-1.8 s (1.8-1.9 s before, detection first), peak RSS
+168-172 MB (156-158: the DEM is now held while the frames are detected), anonymous 94-97 MB;
+locate 6.1-7.2 s (6.4-7.3), peak RSS 181-183 MB (178-182); fixes and headings identical.
 """
 
 from __future__ import annotations
@@ -41,7 +49,7 @@ M_MMAP_THRESHOLD = -3
 M_TRIM_THRESHOLD = -1
 
 #: [bytes] blocks from this size up get a mapping of their own (fixed: see the module's text)
-MMAP_THRESHOLD = 8 << 20
+MMAP_THRESHOLD = 16 << 20
 #: [bytes] free memory at the heap's top beyond which it is given back (see the module's text)
 TRIM_THRESHOLD = 32 << 20
 
