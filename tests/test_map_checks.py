@@ -4,6 +4,7 @@ DEM and the acquisition are refused or reported before any image is read."""
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -197,3 +198,18 @@ def test_a_heading_position_off_the_dem_is_refused_before_detection(tmp_path, fi
     assert r.exit_code == 2, r.output
     assert ("outside the DEM" if where[0] == "--x" else "must be within") in r.output
     assert "Traceback" not in r.output
+
+
+def test_an_acquisition_is_profiled_in_the_databases_bins(tmp_path, files):
+    """A store of 180 bins: the acquisition's profile was made with 360 and refused, after
+    every image had been detected."""
+    from skyfix.formats import Truth
+    from skyfix.simulate import simulate_acquisition
+
+    dem_path, _, db_path = files
+    acq = simulate_acquisition(_dem(), Truth(412.0, 387.0, 40.0, 0.0, 0.0), tmp_path / "acq",
+                               frames=12, seed=3)
+    r = _run("locate", acq, "--db", db_path, "-o", tmp_path / "fix.json")
+    assert r.exit_code == 0, r.output
+    fix = json.loads((tmp_path / "fix.json").read_text())
+    assert math.hypot(fix["x"] - 412.0, fix["y"] - 387.0) < 10.0

@@ -73,7 +73,7 @@ def _check_prior_area(db, dem, prior, radius_m) -> None:
         dem.require_inside(np.array([prior[0]]), np.array([prior[1]]), "prior position")
 
 
-def _read_profile(acq_dir, profile_path, frames=None, detector=None):
+def _read_profile(acq_dir, profile_path, frames=None, detector=None, azimuth_bins=360):
     """Profile from ``--profile`` JSON, else from the acquisition folder, its images detected with
     ``detector`` (a method name; None: the default); with the attitude prior (pitch, roll) [deg]
     and the camera height [m] (None when the profile does not say). ``frames``, a list, receives
@@ -101,9 +101,9 @@ def _read_profile(acq_dir, profile_path, frames=None, detector=None):
 
             skylines = detect_frames(acq, detector)
             frames.extend(frames_from_acquisition(acq, skylines))
-            prof = acquisition_profile(acq, skylines=skylines)
+            prof = acquisition_profile(acq, skylines=skylines, azimuth_bins=azimuth_bins)
         else:
-            prof = acquisition_profile(acq, detector=detector)
+            prof = acquisition_profile(acq, detector=detector, azimuth_bins=azimuth_bins)
         used = prof.meta.get("frames_used")
         obs = int(np.isfinite(prof.elevation_deg).sum())
         st.result = (f"{used} of {n} images with a skyline, " if used is not None else "") + \
@@ -324,7 +324,10 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
             if db is not None else "", f"DEM {dem.shape[1]} x {dem.shape[0]} cells of {dem.cell_m:g} m"
             if dem is not None else ""]))
     frames = []  # the frames' detected rows: a narrow view's attitude is also solved in the image
-    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames, detector)
+    # the profile in the database's bins: a store of 90 bins made a 360-bin profile it then
+    # refused, after detection
+    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames, detector,
+                                        int(db.azimuth_bins) if db is not None else 360)
     if profile_path is not None:
         notes += _check_camera_height(db, db_path, cam_h)
     from ..match import PRESETS
