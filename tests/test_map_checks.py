@@ -213,3 +213,17 @@ def test_an_acquisition_is_profiled_in_the_databases_bins(tmp_path, files):
     assert r.exit_code == 0, r.output
     fix = json.loads((tmp_path / "fix.json").read_text())
     assert math.hypot(fix["x"] - 412.0, fix["y"] - 387.0) < 10.0
+
+
+def test_evaluate_profiles_in_the_databases_bins(tmp_path, files):
+    """Every scenario-1 case on a 180-bin store failed ('the profile has 360 azimuth bins')."""
+    import csv
+
+    dem_path, _, db_path = files
+    r = _run("evaluate", "--dem", dem_path, "--scenario", 1, "--db", db_path, "--sets", "REF",
+             "--cases", 1, "--seed", 2, "-o", tmp_path / "ev")
+    assert r.exit_code == 0, r.output
+    (row,) = list(csv.DictReader((tmp_path / "ev" / "results.csv").open()))
+    assert row["status"] == "ok", row
+    assert math.hypot(float(row["fix_x"]) - float(row["truth_x"]),
+                      float(row["fix_y"]) - float(row["truth_y"])) < 10.0

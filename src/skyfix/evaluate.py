@@ -139,7 +139,8 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
         acq = load_acquisition(case_dir)
         t0 = time.perf_counter()
         profile = acquisition_profile(acq, detector=cfg.detector,
-                                      skylines=truth_skylines(acq) if cfg.skylines == "truth" else None)
+                                      skylines=truth_skylines(acq) if cfg.skylines == "truth" else None,
+                                      azimuth_bins=int(db.azimuth_bins) if db is not None else 360)
         res.time_profile_s = time.perf_counter() - t0
         extra["profile"] = profile
         extra["prior"] = (acq.prior_pitch_deg, acq.prior_roll_deg)

@@ -30,7 +30,9 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
         if k not in cache:
             cache.clear()  # one stop's profile at a time
             acq = load_acquisition(trav.folders[k])
-            prof = acquisition_profile(acq, detector=detector)
+            # in the database's bins: its search takes no other (the headings take any)
+            prof = acquisition_profile(acq, detector=detector,
+                                       azimuth_bins=int(db.azimuth_bins) if db is not None else 360)
             obs = int(np.isfinite(prof.elevation_deg).sum())
             if obs < MIN_BINS:
                 raise SkyfixError(f"{obs} azimuth bins of skyline detected (at least {MIN_BINS} "
