@@ -2,6 +2,7 @@
 input checks on scripted measurements."""
 
 import json
+import re
 import math
 
 import numpy as np
@@ -199,9 +200,12 @@ def test_a_traverse_folder_is_read_in_order(tmp_path):
     (GOOD.replace('"sigma_left_m": 0.5', '"sigma_left_m": 0'), "line 2: 'sigma_left_m' must be > 0"),
     ('{"forward_m": 1, "left_m": 0, "dheading_deg": 0, "cov": [[1, 2, 0], [2, 1, 0], [0, 0, 1]]}',
      "line 2: 'cov' must be symmetric positive definite"),
+    # one of the two was silently ignored
+    (GOOD.replace('"sigma_left_m"', '"cov": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "sigma_left_m"'),
+     "line 2: give 'cov' or the sigmas (sigma_forward_m, sigma_left_m, sigma_heading_deg), not both"),
 ])
 def test_a_malformed_odometry_file_names_the_line(tmp_path, bad, says):
-    with pytest.raises(ParameterError, match=says.replace("(", r"\(")):
+    with pytest.raises(ParameterError, match=re.escape(says)):
         read_traverse(_folder(tmp_path, [GOOD, bad]))
 
 

@@ -67,6 +67,9 @@ def parse_odometry(d: dict, where: str) -> Odometry:
     if not isinstance(d, dict):
         raise ParameterError(f"{where}: expected a JSON object, got {type(d).__name__}")
     vals = [_number(d, k, where) for k in ODO_KEYS]
+    both = [k for k in ("sigma_forward_m", "sigma_left_m", "sigma_heading_deg") if k in d]
+    if "cov" in d and both:  # one of the two would be silently ignored
+        raise ParameterError(f"{where}: give 'cov' or the sigmas ({', '.join(both)}), not both")
     if "cov" in d:
         try:
             cov = np.array(d["cov"], float)
