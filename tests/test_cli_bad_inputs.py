@@ -665,3 +665,10 @@ def test_a_focal_length_pan_or_frame_that_cannot_be_is_refused(tmp_path, changes
     with pytest.raises(SkyfixError) as e:
         load_acquisition(write_acq(tmp_path / "acq", **changes))
     assert field in str(e.value)
+
+
+@pytest.mark.parametrize("planet, says", [("1", "at least 100 m"), ("-5", "at least 100 m"),
+                                          ("nan", "at least 100 m"), ("jupiterish", "unknown planet")])
+def test_a_planet_no_body_could_be_is_refused(dem_file, planet, says):
+    """--planet 1 rendered horizons on a 1 m world without a word."""
+    assert_clean_error(run("horizon", dem_file, "--x", 500, "--y", 500, "--planet", planet), says)

@@ -45,6 +45,10 @@ PLANETS = {"earth": EARTH, "mars": MARS, "moon": MOON}
 CONTRADICTION_SHARE = 0.05
 
 
+#: [m] the smallest body radius accepted (``--planet 1`` was taken as a 1 m world)
+MIN_RADIUS_M = 100.0
+
+
 def get_planet(spec: str | float | Planet) -> Planet:
     """``earth``, ``mars``, ``moon``, a radius in metres (number or numeric string), or a Planet."""
     if isinstance(spec, Planet):
@@ -57,8 +61,10 @@ def get_planet(spec: str | float | Planet) -> Planet:
         raise ParameterError(
             f"unknown planet {spec!r}: use 'earth', 'mars', 'moon' or a radius in metres"
         ) from None
-    if not radius > 0:
-        raise ParameterError(f"planet radius must be > 0 m, got {radius}")
+    if not radius >= MIN_RADIUS_M:
+        raise ParameterError(f"planet radius must be at least {MIN_RADIUS_M:g} m (no body with a DEM "
+                             f"is smaller: Itokawa's mean radius is ~165 m), got {radius:g}; give it "
+                             "in metres")
     return Planet(f"radius {radius:g} m", radius, 0.0)
 
 
