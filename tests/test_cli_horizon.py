@@ -66,6 +66,9 @@ def test_bad_input_gives_one_line_errors(tmp_path, tmp_dem_file):
     assert_clean_error(run("horizon", good, "--x", 5_000, "--y", 0), "outside the DEM")
     assert_clean_error(run("horizon", good, "--x", 500, "--y", 500, "--camera-height-m", -2), "camera height")
     assert_clean_error(run("horizon", good, "--x", 500, "--y", 500, "--azimuth-bins", 0), "azimuth bins")
+    # 1e8 bins ran for 88 s before answering
+    assert_clean_error(run("horizon", good, "--x", 500, "--y", 500, "--azimuth-bins", 10**8),
+                       "azimuth bins must be 1 to 65535")
     assert_clean_error(run("horizon", good, "--x", 500, "--y", 500, "--planet", "venus"), "unknown planet")
 
     import rasterio

@@ -7,6 +7,7 @@ import sys
 import click
 import numpy as np
 
+from ..errors import ParameterError
 from .options import (azimuth_bins_option, camera_height_option, check_point_options, crs_option,
                       max_distance_option, overwrite_option, planet_option, point_xy)
 
@@ -43,6 +44,8 @@ def horizon(dem_path, x, y, lon, lat, camera_height_m, planet, azimuth_bins, max
     from ..horizon import render_horizon
 
     check_point_options(x, y, lon, lat)
+    if not 1 <= azimuth_bins <= 65535:  # 1e8 bins ran for 88 s; a database holds at most 65535
+        raise ParameterError(f"azimuth bins must be 1 to 65535, got {azimuth_bins}")
     check_outputs(overwrite, ("--plot", plot, PLOT_FORMATS))
     dem = load_dems([dem_path, *more_dems], crs=crs) if more_dems else load_dem(dem_path, crs=crs)
     x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
