@@ -313,19 +313,21 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                     # DEM of the same place is read into.
                     dst_crs = utm_crs_for((w + e) / 2, (s + n) / 2)
                     log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
-                                "%.0f %%): reprojected to %s, in which coordinates are now given; "
-                                "pass --crs to choose another metric CRS", path.name,
-                                _crs_name(src_crs) or src_crs.name, 100 * err,
+                                "%.0f %%): reprojected to %s, in which coordinates are now given "
+                                "(for another metric CRS, reproject the file: gdalwarp -t_srs)",
+                                path.name, _crs_name(src_crs) or src_crs.name, 100 * err,
                                 100 * MAX_KEPT_SCALE_ERROR, _crs_name(dst_crs))
                 else:
                     turn = direction_error_deg(src_crs, src.bounds)
+                    utm = _crs_name(utm_crs_for((w + e) / 2, (s + n) / 2))
+                    # only `horizon` takes --crs: the advice is one that works for every command
                     log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
-                                "%.1f %%)%s: horizons are distorted by as much; pass --crs with a "
-                                "conformal CRS centred on the area (its UTM zone) to avoid it",
-                                path.name, _crs_name(src_crs) or src_crs.name, 100 * err,
-                                100 * MAX_SCALE_ERROR,
+                                "%.1f %%)%s: horizons are distorted by as much; to avoid it, "
+                                "reproject it to a conformal CRS, its UTM zone: gdalwarp -t_srs "
+                                "%s %s OUT.tif", path.name, _crs_name(src_crs) or src_crs.name,
+                                100 * err, 100 * MAX_SCALE_ERROR,
                                 f" and turns directions by up to {turn:.2f} deg (a narrow view's "
-                                "heading by as much)" if turn >= 0.01 else "")
+                                "heading by as much)" if turn >= 0.01 else "", utm, path.name)
         if not dst_crs.is_projected or abs(dst_crs.axis_info[0].unit_conversion_factor - 1.0) > 1e-9:
             raise DemError(f"target CRS {_crs_name(dst_crs) or dst_crs.name} is not projected in metres: "
                            "pass --crs with a metric projected CRS (e.g. a UTM zone)")

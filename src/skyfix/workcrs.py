@@ -8,7 +8,7 @@ projected with more distortion than that on another body than Earth, the DEM is 
 transverse Mercator on its body, centred on the DEM (conformal, scale 1 on its central meridian:
 well under 0.1 % within ~90 km of it). On Earth a geographic DEM goes to its UTM zone, as it always
 has; a projected Earth DEM that stretches distances by 0.1-1 % is kept (its coordinates are the
-user's) with a warning that gives the figure and says to pass ``--crs``; beyond 1 % (Web Mercator:
+user's) with a warning that gives the figure and how to reproject it (``gdalwarp``); beyond 1 % (Web Mercator:
 44 % at 46 deg N) it goes to its UTM zone too, with a warning (``skyfix.dem.MAX_KEPT_SCALE_ERROR``).
 """
 
