@@ -372,3 +372,17 @@ def test_direction_error_is_how_far_grid_azimuths_miss_the_geodesic_ones():
     assert worst == pytest.approx(0.556, abs=0.002)
     assert direction_error_deg(c, (x0 - 1, y0 - 1, x0 + 1, y0 + 1), n=2) == pytest.approx(worst, abs=1e-3)
     assert direction_error_deg("EPSG:32611", (300_000, 4_000_000, 400_000, 4_100_000)) < 1e-6
+
+
+def test_a_dem_too_wide_for_one_metric_crs_is_refused(tmp_path):
+    """A whole-world lon/lat raster went into one UTM zone: 657 % scale error, every horizon
+    stretched, a heading sigma of 9285 deg, exit 0."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    path = tmp_path / "world.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=360, height=170, count=1, dtype="float32",
+                       crs="EPSG:4326", transform=from_origin(-180, 85, 1, 1)) as dst:
+        dst.write(np.full((1, 170, 360), 500.0, np.float32))
+    with pytest.raises(DemError, match="spans too much of its body for one metric CRS"):
+        load_dem(path)

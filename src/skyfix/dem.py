@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -25,6 +26,10 @@ log = logging.getLogger(__name__)
 #: its UTM zone; between :data:`~skyfix.workcrs.MAX_SCALE_ERROR` (0.1 %) and this it is kept with a
 #: warning. 1 % of a 5 km sight line lowers a ridge 1000 m above the camera by 0.1 deg.
 MAX_KEPT_SCALE_ERROR = 0.01
+#: [fraction] the largest scale error of the work CRS skyfix picks for a DEM: beyond it the DEM
+#: spans too much of its body for any one metric CRS (a UTM zone keeps 5 % within ~2000 km of its
+#: central meridian)
+MAX_WORK_SCALE_ERROR = 0.05
 #: [m] largest height from the datum a DEM may hold (beyond: a fill value or a unit mistake)
 MAX_ABS_HEIGHT_M = 100_000.0
 
@@ -340,6 +345,18 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 res = min(abs(dst_transform.a), abs(dst_transform.e))
                 dst_transform, w, h = calculate_default_transform(
                     src.crs, dst_crs.to_wkt(), src.width, src.height, *src.bounds, resolution=res)
+            if crs is None:
+                x0, y0 = dst_transform.c, dst_transform.f
+                x1, y1 = x0 + w * dst_transform.a, y0 + h * dst_transform.e
+                spread = scale_error(dst_crs, (min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1)))
+                if spread > MAX_WORK_SCALE_ERROR:
+                    # no one metric CRS holds a continent: every horizon would be stretched
+                    raise DemError(
+                        f"{path.name} spans too much of its body for one metric CRS: in "
+                        f"{_crs_name(dst_crs) or dst_crs.name} distances stretch "
+                        + (f"by up to {100 * spread:.0f} %" if math.isfinite(spread) else
+                           "without bound") + " over it; clip it to the area you need (e.g. "
+                        "gdalwarp -te XMIN YMIN XMAX YMAX, a few hundred km at most)")
             out = np.full((h, w), np.nan, np.float64)
             reproject(np.where(np.isfinite(z), z, np.nan), out, src_transform=transform,
                       src_crs=src.crs, dst_transform=dst_transform, dst_crs=dst_crs.to_wkt(),

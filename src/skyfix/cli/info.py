@@ -121,5 +121,6 @@ def _dem_lines(d: dict):
     yield "heights", f"{d['height_m'][0]:.1f} .. {d['height_m'][1]:.1f} m; {d['voids']}"
     err = d["scale_error"]
     yield "distortion", (f"scale error up to {100 * err:.4f} % over the DEM"
-                         + (" (over the 0.1 % a horizon can take: pass --crs with a conformal CRS)"
+                         + (" (over the 0.1 % a horizon can take: reproject it to a conformal CRS, "
+                            "its UTM zone, with gdalwarp -t_srs)"
                             if err > 1e-3 else ""))

@@ -4,6 +4,7 @@ with the CRS and longitude/latitude of the point.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 
@@ -83,6 +84,9 @@ class HeadingFix:
 
 #: [deg] the largest 1-sigma at which an angle counts as determined by the view
 DETERMINED_SIGMA_DEG = 0.5
+#: [deg] the 1-sigma of a heading known not at all (uniform on the circle: 360 / sqrt(12)); no
+#: reported heading sigma exceeds it
+UNKNOWN_HEADING_SIGMA_DEG = 360.0 / math.sqrt(12.0)
 
 
 def crs_and_lonlat(crs_wkt: str, x: float, y: float):

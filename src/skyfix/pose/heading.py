@@ -14,7 +14,7 @@ from ..north import meridian_convergence_deg, true_heading_deg, wrap_deg
 from .attitude import fit_attitude
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
                          load_confidence_model, residual_correlation_bins, structureless_cap)
-from .fix import DETERMINED_SIGMA_DEG, HeadingFix, crs_and_lonlat
+from .fix import DETERMINED_SIGMA_DEG, UNKNOWN_HEADING_SIGMA_DEG, HeadingFix, crs_and_lonlat
 from .forward import body_profile, harmonic_tilt, residual_profile
 from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
                           image_plane_attitude, view_span_deg)
@@ -25,9 +25,6 @@ from .scoring import profile_arrays
 PINNED_HEADING_CONFIDENCE = 0.05
 #: [deg] scenario 3's tolerance: a heading within it is right (the confidence model's)
 HEADING_TOLERANCE_DEG = 1.0
-#: [deg] the 1-sigma of a heading known not at all (uniform on the circle: 360 / sqrt(12)); no
-#: reported sigma exceeds it
-UNKNOWN_HEADING_SIGMA_DEG = 360.0 / math.sqrt(12.0)
 #: [m] how far scenario 3's rough position is taken to be off unless told (``skyfix heading
 #: --position-sigma-m``): its rover knows where it is from odometry to metres, every 50 m
 HEADING_POSITION_SIGMA_M = 10.0

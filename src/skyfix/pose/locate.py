@@ -40,7 +40,7 @@ from .confidence import (calibrated_sigma, confidence_features, confidence_from_
                          load_confidence_model, position_sigma, residual_correlation_bins,
                          structureless_cap)
 from .config import PoseConfig
-from .fix import Fix, crs_and_lonlat
+from .fix import UNKNOWN_HEADING_SIGMA_DEG, Fix, crs_and_lonlat
 from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
                           image_plane_attitude, view_span_deg)
 from .map_error import fit_map_covariance
@@ -337,6 +337,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     fix = Fix(x=float(fx), y=float(fy), crs=crs, lon=lon, lat=lat,
               heading_deg=true_heading_deg(grid, conv), grid_heading_deg=grid,
               meridian_convergence_deg=conv, pitch_deg=float(pitch), roll_deg=float(roll),
-              position_sigma_m=float(psig), heading_sigma_deg=float(hsig), confidence=conf,
+              position_sigma_m=float(psig),
+              heading_sigma_deg=float(min(hsig, UNKNOWN_HEADING_SIGMA_DEG)), confidence=conf,
               score=float(best_s), candidates=tuple(cand_out), features=feat, notes=tuple(notes))
     return (fix, mres) if return_match else fix
