@@ -18,7 +18,8 @@ import numpy as np
 
 from .errors import DemError, OutsideDemError, ParameterError
 from .planets import EARTH, planet_from_crs
-from .workcrs import MAX_SCALE_ERROR, direction_error_deg, geographic_bounds, local_tm_crs, scale_error
+from .workcrs import (MAX_SCALE_ERROR, direction_error_deg, geographic_bounds, local_tm_crs,
+                      scale_error, source_footprint, trim_to_footprint)
 
 log = logging.getLogger(__name__)
 
@@ -363,9 +364,13 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                       resampling=Resampling.bilinear, src_nodata=np.nan, dst_nodata=np.nan)
             # Trim by where the source raster lies, not by where heights are: the DEM's own voids
             # (7 % of an SRTM tile, some along its edges) are holes to fill, not border to cut.
-            footprint = _source_footprint(src.crs, transform, z.shape, dst_crs.to_wkt(),
-                                          dst_transform, (h, w))
-            z, dst_transform = _trim_to_footprint(out, footprint, dst_transform, path.name)
+            footprint = source_footprint(src.crs, transform, z.shape, dst_crs.to_wkt(),
+                                         dst_transform, (h, w))
+            z, dst_transform, kept = trim_to_footprint(out, footprint, dst_transform, path.name)
+            # a rotated target CRS can keep much less than the source covers: said, not silent
+            (log.warning if kept < 0.8 else log.info)(
+                "%s: the reprojected DEM is cropped to %d x %d cells, %.1f %% of the source's "
+                "footprint", path.name, z.shape[1], z.shape[0], 100 * kept)
             transform = dst_transform
             log.info("reprojected %s from %s to %s", path.name, _crs_name(src_crs), _crs_name(dst_crs))
     voids = _fill_voids(z, fill_max_cells)
@@ -381,66 +386,6 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                     "than %.1f %%): horizons are distorted by as much", path.name,
                     dem.crs_name or dst_crs.name, 100 * dem.scale_error, 100 * MAX_SCALE_ERROR)
     return dem
-
-
-def _source_footprint(src_crs, src_transform, src_shape, dst_crs, dst_transform, dst_shape):
-    """Boolean (ny, nx) mask of the destination cells whose centre falls on the source raster,
-    whatever the source holds there (its no-data included)."""
-    from rasterio.warp import Resampling, reproject
-
-    ones = np.ones(src_shape, np.uint8)
-    fp = np.zeros(dst_shape, np.uint8)
-    # Nearest on an all-ones raster with no source nodata: a cell is 1 exactly where the warper
-    # found a source pixel under it, i.e. inside the source extent; 0 is the warp's own wedge.
-    reproject(ones, fp, src_transform=src_transform, src_crs=src_crs, src_nodata=None,
-              dst_transform=dst_transform, dst_crs=dst_crs, dst_nodata=0,
-              resampling=Resampling.nearest)
-    return fp.astype(bool)
-
-
-def _trim_to_footprint(z: np.ndarray, footprint: np.ndarray, transform, name: str = "DEM"):
-    """Crop a reprojected grid to a north-up rectangle lying wholly inside the source footprint.
-
-    A reprojection turns the source's rectangle into a rotated or curved shape and leaves empty
-    wedges around it; the crop removes them. Only ``footprint`` decides the crop, never NaN in
-    ``z``: voids inside the footprint stay in the grid, to be filled. Each step drops the edge row or
-    column with the largest share outside the footprint, until every edge line lies fully inside
-    (no height is invented beyond the source). Returns the cropped copy of ``z`` and its transform.
-    """
-    from rasterio.transform import Affine
-
-    fp = footprint
-    r0, r1, c0, c1 = 0, fp.shape[0], 0, fp.shape[1]
-    for _ in range(sum(fp.shape)):
-        if r1 - r0 < 2 or c1 - c0 < 2:
-            break
-        edges = {
-            "top": fp[r0, c0:c1].mean(), "bottom": fp[r1 - 1, c0:c1].mean(),
-            "left": fp[r0:r1, c0].mean(), "right": fp[r0:r1, c1 - 1].mean(),
-        }
-        side = min(edges, key=edges.get)
-        if edges[side] == 1.0:
-            break
-        if side == "top":
-            r0 += 1
-        elif side == "bottom":
-            r1 -= 1
-        elif side == "left":
-            c0 += 1
-        else:
-            c1 -= 1
-    if r1 - r0 < 2 or c1 - c0 < 2 or not fp[r0:r1, c0:c1].all():
-        raise DemError(f"{name}: once reprojected, no north-up rectangle of at least 2 x 2 cells lies "
-                       "wholly inside the DEM (its footprint in the target CRS is too thin, too rotated "
-                       "or not convex): pass --crs with a CRS whose north is close to the DEM's")
-    kept = (r1 - r0) * (c1 - c0) / max(int(fp.sum()), 1)
-    # A rotated target CRS can keep much less than the source covers: say so rather than shrink
-    # the work area silently.
-    (log.warning if kept < 0.8 else log.info)(
-        "%s: the reprojected DEM is cropped to %d x %d cells, %.1f %% of the source's footprint",
-        name, c1 - c0, r1 - r0, 100 * kept)
-    t = transform @ Affine.translation(c0, r0)
-    return z[r0:r1, c0:c1].copy(), t
 
 
 def _fill_voids(z: np.ndarray, max_cells: int) -> VoidReport:

@@ -1,5 +1,6 @@
 """The work CRS (``conventions.md``, "World frame"): a metric projected CRS on the DEM's own body in
-which distances are true to within 0.1 % over the work area.
+which distances are true to within 0.1 % over the work area; and, for a DEM reprojected into it,
+the crop to where the source raster lies (:func:`source_footprint`, :func:`trim_to_footprint`).
 
 A horizon is made of distances and heights: a projection that stretches distances tilts every
 line of sight (an equirectangular Mars map with its standard parallel at the equator stretches
@@ -15,6 +16,8 @@ user's) with a warning that gives the figure and how to reproject it (``gdalwarp
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 #: the largest scale error [fraction] a work CRS may have over the work area
 MAX_SCALE_ERROR = 0.001
@@ -104,3 +107,61 @@ def lonlat_to_xy(crs, lon: float, lat: float):
 
         raise ParameterError(f"lon {lon}, lat {lat} cannot be placed in {c.name}")
     return float(x), float(y)
+
+
+def source_footprint(src_crs, src_transform, src_shape, dst_crs, dst_transform, dst_shape):
+    """Boolean (ny, nx) mask of the destination cells whose centre falls on the source raster,
+    whatever the source holds there (its no-data included)."""
+    from rasterio.warp import Resampling, reproject
+
+    ones = np.ones(src_shape, np.uint8)
+    fp = np.zeros(dst_shape, np.uint8)
+    # Nearest on an all-ones raster with no source nodata: a cell is 1 exactly where the warper
+    # found a source pixel under it, i.e. inside the source extent; 0 is the warp's own wedge.
+    reproject(ones, fp, src_transform=src_transform, src_crs=src_crs, src_nodata=None,
+              dst_transform=dst_transform, dst_crs=dst_crs, dst_nodata=0,
+              resampling=Resampling.nearest)
+    return fp.astype(bool)
+
+
+def trim_to_footprint(z: np.ndarray, footprint: np.ndarray, transform, name: str = "DEM"):
+    """Crop a reprojected grid to a north-up rectangle lying wholly inside the source footprint.
+
+    A reprojection turns the source's rectangle into a rotated or curved shape and leaves empty
+    wedges around it; the crop removes them. Only ``footprint`` decides the crop, never NaN in
+    ``z``: voids inside the footprint stay in the grid, to be filled. Each step drops the edge row or
+    column with the largest share outside the footprint, until every edge line lies fully inside
+    (no height is invented beyond the source). Returns the cropped copy of ``z``, its transform and
+    the share of the footprint kept.
+    """
+    from rasterio.transform import Affine
+
+    from .errors import DemError
+
+    fp = footprint
+    r0, r1, c0, c1 = 0, fp.shape[0], 0, fp.shape[1]
+    for _ in range(sum(fp.shape)):
+        if r1 - r0 < 2 or c1 - c0 < 2:
+            break
+        edges = {
+            "top": fp[r0, c0:c1].mean(), "bottom": fp[r1 - 1, c0:c1].mean(),
+            "left": fp[r0:r1, c0].mean(), "right": fp[r0:r1, c1 - 1].mean(),
+        }
+        side = min(edges, key=edges.get)
+        if edges[side] == 1.0:
+            break
+        if side == "top":
+            r0 += 1
+        elif side == "bottom":
+            r1 -= 1
+        elif side == "left":
+            c0 += 1
+        else:
+            c1 -= 1
+    if r1 - r0 < 2 or c1 - c0 < 2 or not fp[r0:r1, c0:c1].all():
+        raise DemError(f"{name}: once reprojected, no north-up rectangle of at least 2 x 2 cells lies "
+                       "wholly inside the DEM (its footprint in the target CRS is too thin, too rotated "
+                       "or not convex): pass --crs with a CRS whose north is close to the DEM's")
+    kept = (r1 - r0) * (c1 - c0) / max(int(fp.sum()), 1)
+    t = transform @ Affine.translation(c0, r0)
+    return z[r0:r1, c0:c1].copy(), t, kept
