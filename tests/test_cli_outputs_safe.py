@@ -240,6 +240,7 @@ def stub_set(monkeypatch):
     (["--tilt-deg", 200], "mast tilt"),
     (["--area", -500, -500, 10, 10], "outside the DEM"),
     (["--scenario", 1], "give --db"),
+    (["--cases", 10**9], "at most 10000 cases a set"),  # 1e9 started simulating, with no end
 ])
 def test_evaluate_refusals_leave_no_output(dem, tmp_path, stub_set, args, msg):
     out = tmp_path / "e"

@@ -36,6 +36,10 @@ HEADING_PRIOR_OFFSETS_M = (0.0, 5.0, 10.0, 20.0)
 DRIFT_M = 20.0
 
 
+#: the most cases a set may ask for
+MAX_CASES = 10_000
+
+
 @dataclass(frozen=True)
 class EvalConfig:
     """How to evaluate.
@@ -79,6 +83,9 @@ class EvalConfig:
             raise ParameterError(f"unknown set(s) {', '.join(bad)}: choose from {', '.join(SETS)}")
         if isinstance(self.cases, bool) or int(self.cases) != self.cases or self.cases < 1:
             raise ParameterError(f"cases must be a whole number >= 1, got {self.cases}")
+        if self.cases > MAX_CASES:  # 1e9 started simulating, a few seconds a case, with no end
+            raise ParameterError(f"at most {MAX_CASES} cases a set (days of simulation at a few "
+                                 f"seconds a case), got {self.cases}")
         from .planets import get_planet
         from .simulate import check_seed
 
