@@ -672,3 +672,30 @@ def test_a_focal_length_pan_or_frame_that_cannot_be_is_refused(tmp_path, changes
 def test_a_planet_no_body_could_be_is_refused(dem_file, planet, says):
     """--planet 1 rendered horizons on a 1 m world without a word."""
     assert_clean_error(run("horizon", dem_file, "--x", 500, "--y", 500, "--planet", planet), says)
+
+
+def test_build_and_verify_options_that_could_not_work_are_one_line(tmp_path, dem_file):
+    """--block-positions 100000 asked zarr for 6.5 TiB (a traceback, a half-made store); verify
+    --seed -3 died in NumPy's generator."""
+    out = tmp_path / "db.zarr"
+    base = ("build-db", dem_file, "-o", out, "--bounds", 400, 400, 600, 600, "--spacing-m", 100,
+            "--workers", 0, "--no-progress")
+    assert_clean_error(run(*base, "--block-positions", 100000), "at most 256 positions a side")
+    assert not out.exists()
+    assert run(*base).exit_code == 0
+    assert_clean_error(run("verify", out, "--samples", 1, "--seed", -3), "seed must be a whole number")
+
+
+@pytest.mark.parametrize("args, says", [
+    (("--frames", 1, "--pan-start-deg", 1e12), "pan start must be within +-3600"),
+    (("--mode", "panorama", "--pano-size", 64, 4), "at least 2 x 8 px"),
+    (("--conditions", "dust,dust:0.3"), "given twice"),
+    (("--conditions", "dust:"), "strength after ':' is missing"),
+    (("--conditions", ",,"), "empty item"),
+])
+def test_simulate_writes_only_what_skyfix_reads_back(tmp_path, dem_file, args, says):
+    """Each of these was written (exit 0), then refused by profile or silently read otherwise."""
+    out = tmp_path / "sim"
+    assert_clean_error(run("simulate", dem_file, "--x", 500, "--y", 500, "--yaw-deg", 0, *args,
+                           "-o", out), says)
+    assert not out.exists()

@@ -35,6 +35,9 @@ MISSING = -32768
 
 #: positions per block side (one zarr chunk per block)
 BLOCK = 64
+#: the largest block side [positions]: a block is rendered whole, 256 x 256 skylines of 360 bins in
+#: three float32 arrays (~0.28 GB)
+MAX_BLOCK = 256
 
 
 #: [deg] the renderer's skip tolerance used for every build (a build parameter)
@@ -111,6 +114,9 @@ class Grid:
                                  f"got {xmin} {ymin} {xmax} {ymax}")
         if int(block) != block or block < 1:
             raise ParameterError(f"block size must be a positive whole number, got {block}")
+        if block > MAX_BLOCK:  # a block is rendered and held whole: 1e5 asked zarr for 6.5 TiB
+            raise ParameterError(f"block size must be at most {MAX_BLOCK} positions a side ({MAX_BLOCK}^2 "
+                                 f"skylines held at once), got {block}; the default is {BLOCK}")
         fx, fy = (xmax - xmin) / spacing_m, (ymax - ymin) / spacing_m
         if not (math.isfinite(fx) and math.isfinite(fy)):  # a spacing of 1e-320 m overflows
             raise ParameterError(f"spacing {spacing_m} m is far too small for bounds {xmin} {ymin} {xmax} "

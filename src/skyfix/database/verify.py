@@ -71,6 +71,8 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
     if not is_whole_at_least_0(samples):
         raise ParameterError(f"samples must be a whole number >= 0 (0: checksums only), got {samples!r}")
     samples = int(samples)
+    if not is_whole_at_least_0(seed):  # numpy's generator refused it with a traceback
+        raise ParameterError(f"seed must be a whole number >= 0, got {seed!r}")
     db = open_database(path, allow_incomplete=True)
     rep = VerifyReport(Path(path), db.n_blocks, samples_requested=samples)
     good = []

@@ -25,9 +25,11 @@ import numpy as np
 from .._io import atomic_path
 from ..camera import Camera, get_camera
 from ..dem import Dem
+from ..detect.options import MIN_HEIGHT_PX, MIN_WIDTH_PX
 from ..errors import ParameterError
 from ..formats import (Acquisition, Frame, PanoramaSpec, Skyline, Truth, save_acquisition,
                        write_skyline_json)
+from ..formats.acquisition import MAX_PAN_DEG
 from ..planets import get_planet, resolve_planet
 from ..raycast import Projection, camera_centre
 from .conditions import as_conditions, check_planet
@@ -103,11 +105,15 @@ def check_render_options(*, mode: str, camera, camera_height_m: float, tilt_deg:
         for name, v in (("pan start", pan_start_deg), ("pan step", pan_step_deg)):
             if v is not None and not np.isfinite(v):
                 raise ParameterError(f"{name} must be a finite angle in degrees, got {v}")
+        # the acquisition must be one skyfix reads back (1e12 deg was written, then refused)
+        if pan_start_deg is not None and abs(pan_start_deg) > MAX_PAN_DEG:
+            raise ParameterError(f"pan start must be within +-{MAX_PAN_DEG:g} deg, got {pan_start_deg:g}")
         pans = frame_pans(cam, frames, pan_start_deg, pan_step_deg)
     else:
         w, h = int(pano_size[0]), int(pano_size[1])
-        if w < 2 or h < 2:
-            raise ParameterError(f"panorama size must be at least 2 x 2 px, got {w} x {h}")
+        if w < MIN_WIDTH_PX or h < MIN_HEIGHT_PX:  # the detector's least: smaller was written, then refused
+            raise ParameterError(f"panorama size must be at least {MIN_WIDTH_PX} x {MIN_HEIGHT_PX} px, "
+                                 f"got {w} x {h}")
         if w * h > MAX_PANO_PIXELS:  # one of the ray caster's arrays alone is 12 bytes a pixel
             raise ParameterError(f"panorama size {w} x {h} px is more than the "
                                  f"{MAX_PANO_PIXELS // 10**6} MP the simulator renders (e.g. "

@@ -55,16 +55,22 @@ class Conditions:
         kw = {}
         for item in str(spec).split(","):
             item = item.strip()
-            if not item:
-                continue
-            name, _, val = item.partition(":")
+            if not item:  # "dust,,rocks" and ",," said nothing: refused, not read as nominal
+                raise ParameterError(f"conditions {spec!r}: an empty item between commas; write "
+                                     "NAME or NAME:STRENGTH, comma-separated (e.g. dust:0.5,rocks)")
+            name, colon, val = item.partition(":")
             name = name.strip().lower()
             if name not in cls.names():
                 raise ParameterError(
                     f"unknown condition {name!r}: choose from {', '.join(cls.names())} "
                     "(e.g. --conditions dust:0.5,rocks)")
+            if name in kw:  # the last one won, silently
+                raise ParameterError(f"condition {name} is given twice in {spec!r}: give it once")
+            if colon and not val.strip():  # "dust:" meant 1, silently
+                raise ParameterError(f"condition {name}: the strength after ':' is missing (a "
+                                     "number in [0, 1]; NAME alone means 1)")
             try:
-                kw[name] = float(val) if val.strip() else 1.0
+                kw[name] = float(val) if colon else 1.0
             except ValueError:
                 raise ParameterError(f"condition {name}: strength {val!r} is not a number in [0, 1]") from None
         return cls(**kw)
