@@ -699,3 +699,20 @@ def test_simulate_writes_only_what_skyfix_reads_back(tmp_path, dem_file, args, s
     assert_clean_error(run("simulate", dem_file, "--x", 500, "--y", 500, "--yaw-deg", 0, *args,
                            "-o", out), says)
     assert not out.exists()
+
+
+def test_a_truncated_jpeg_is_refused_naming_it(tmp_path):
+    """OpenCV decoded the first eighth of a JPEG and filled the rest with grey (libjpeg only
+    warned on stderr): fuse found a skyline in every column, exit 0."""
+    import cv2
+
+    yy, xx = np.mgrid[0:240, 0:320]
+    sky = np.where(yy < 100 + 20 * np.sin(xx / 30.0), 200, 60).astype(np.uint8)
+    ok, data = cv2.imencode(".jpg", np.dstack([sky, sky, (xx % 256).astype(np.uint8)]))
+    whole, cut = tmp_path / "whole.jpg", tmp_path / "cut.jpg"
+    whole.write_bytes(data.tobytes())
+    cut.write_bytes(data.tobytes()[: len(data) // 8])
+    assert run("detect", whole, "-o", tmp_path / "w.json").exit_code == 0
+    assert_clean_error(run("detect", cut, "-o", tmp_path / "c.json"), "cut.jpg is damaged or truncated",
+                       "Premature end of JPEG file")
+    assert not (tmp_path / "c.json").exists()

@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from ..errors import ParameterError
+from ..formats.images import imread_whole
 
 
 def _floats(text, name):
@@ -72,7 +73,7 @@ def acquisition_init(folder, images, hfov_deg, focal_px, pan_deg, pan_step_deg, 
             raise ParameterError(f"{len(names)} images every {pan_step_deg:g} deg span more than "
                                  "360 deg: check --pan-step-deg, or give each --pan-deg")
     check_can_write(root / ACQUISITION_FILE, overwrite)
-    first = cv2.imread(str(root / names[0]), cv2.IMREAD_UNCHANGED)
+    first = imread_whole(root / names[0], cv2.IMREAD_UNCHANGED)
     if first is None:
         raise ParameterError(f"cannot read {root / names[0]} as an image")
     h, w = first.shape[:2]
@@ -105,7 +106,7 @@ def acquisition_init(folder, images, hfov_deg, focal_px, pan_deg, pan_step_deg, 
         path.unlink()
         raise
     for f in back.frames:
-        im = cv2.imread(str(root / f.image), cv2.IMREAD_UNCHANGED)
+        im = imread_whole(root / f.image, cv2.IMREAD_UNCHANGED)
         if im is None or im.shape[:2] != (h, w):
             path.unlink()
             raise ParameterError(f"{f.image} is not a {w} x {h} image like {names[0]}: one camera, "

@@ -10,6 +10,7 @@ import click
 from .._io import PLOT_FORMATS, check_outputs, to_json
 from ..detect.options import DEFAULT_METHOD, METHODS
 from ..errors import ParameterError, SkyfixError
+from ..formats.images import imread_whole
 
 
 
@@ -20,7 +21,7 @@ def read_image(path) -> "np.ndarray":  # noqa: F821
     path = Path(path)
     if not path.is_file():
         raise SkyfixError(f"image {path} does not exist")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    img = imread_whole(path, cv2.IMREAD_UNCHANGED)
     if img is None:
         raise SkyfixError(f"cannot read {path} as an image (PNG, JPEG or TIFF expected)")
     if img.ndim == 3:
@@ -42,7 +43,7 @@ def read_mask(path, shape):
     import cv2
 
     path = Path(path)
-    m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    m = imread_whole(path, cv2.IMREAD_GRAYSCALE)
     if m is None:
         raise SkyfixError(f"cannot read mask {path} as an image")
     if m.shape != tuple(shape[:2]):

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..errors import AcquisitionError, DetectionError
 from ..formats import Acquisition, Skyline
+from ..formats.images import imread_whole
 
 
 #: A detector: RGB uint8 image (H, W, 3) and a validity mask (or None) -> Skyline.
@@ -24,7 +25,7 @@ def read_rgb(path) -> np.ndarray:
     """An image as RGB uint8 (H, W, 3); 16-bit images are scaled down."""
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    img = imread_whole(path, cv2.IMREAD_UNCHANGED)
     if img is None:
         raise AcquisitionError(f"cannot read image {path}: not an image OpenCV can decode")
     if img.dtype == np.uint16:
