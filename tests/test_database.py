@@ -321,7 +321,7 @@ def test_sweep_build_resumes_to_an_identical_store_and_keeps_its_renderer(dem_pa
     shutil.copytree(sweep_db, out)
     for br, bc in ((0, 1), (2, 2)):  # the resume renders two lone blocks of the group
         (out / MARKER_DIR / marker_name(br, bc)).unlink()
-    with pytest.raises(DatabaseError, match="renderer: the store has 'sweep', this build asks for None"):
+    with pytest.raises(DatabaseError, match="renderer: the store has 'sweep', this build asks for 'kernel'"):
         _build(dem_path, out)
     r = _build(dem_path, out, renderer="sweep")
     assert r.built == 2 and r.resumed_from == 7

@@ -122,8 +122,12 @@ def _create_store(out: Path, grid: Grid, bins: int, attrs: dict) -> None:
 
 
 def _differences(old: dict, new: dict) -> list[str]:
+    def shown(k, v):
+        # the renderer is recorded only for the sweep: a store without it was the kernel's
+        return "'kernel'" if k == "renderer" and v is None else repr(v)
+
     keys = sorted(set(old) | set(new))
-    return [f"{k}: the store has {old.get(k)!r}, this build asks for {new.get(k)!r}"
+    return [f"{k}: the store has {shown(k, old.get(k))}, this build asks for {shown(k, new.get(k))}"
             for k in keys if old.get(k) != new.get(k)]
 
 
