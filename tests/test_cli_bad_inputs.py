@@ -716,3 +716,17 @@ def test_a_truncated_jpeg_is_refused_naming_it(tmp_path):
     assert_clean_error(run("detect", cut, "-o", tmp_path / "c.json"), "cut.jpg is damaged or truncated",
                        "Premature end of JPEG file")
     assert not (tmp_path / "c.json").exists()
+
+
+def test_an_image_too_small_to_search_is_named(tmp_path):
+    """Among many images (evaluate-detect) the refusal did not say which."""
+    import cv2
+
+    from skyfix.detect import detect_skyline
+
+    with pytest.raises(SkyfixError, match=r"^tiny.png: image of 1 x 1 px"):
+        detect_skyline(np.zeros((1, 1, 3), np.uint8), name="tiny.png")
+    cv2.imwrite(str(tmp_path / "tiny.png"), np.zeros((1, 1, 3), np.uint8))
+    (tmp_path / "tiny.skyline.json").write_text(json.dumps({"image": "tiny.png", "width": 1,
+                                                            "height": 1, "rows": [None]}))
+    assert_clean_error(run("evaluate-detect", "--images", tmp_path), "tiny.png: image of 1 x 1 px")

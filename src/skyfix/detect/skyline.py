@@ -43,7 +43,13 @@ def detect_skyline(image, *, mask=None, method: str = DEFAULT_METHOD, name: str 
     except TypeError as e:
         raise ParameterError(f"bad option for method {method!r}: {e}") from None
     check_options(opt)
-    img, _, _ = as_gray_rgb(image)
+    try:
+        img, _, _ = as_gray_rgb(image)
+    except ParameterError as e:
+        if not name:
+            raise
+        # one image of many (evaluate-detect, an acquisition's frames): say which
+        raise ParameterError(f"{name}: {e}") from None
     img, mask = non_finite_as_no_data(img, mask)
     if img.ndim == 3 and is_grey_rgb(img):
         img = img[..., 0]  # a grey image stored as RGB: treated as the grey image it is
