@@ -345,3 +345,21 @@ def test_seed_check_takes_numpy_integers():
     for bad in (-1, 1.5, True, math.nan):
         with pytest.raises(ParameterError):
             check_seed(bad)
+
+
+def test_a_rerun_clears_what_a_killed_run_of_the_same_output_left(tmp_path):
+    """A simulate killed mid-render left .NAME.xxx.partial (6 MB) that no rerun removed; an .old
+    folder (an earlier output moved aside mid-swap) and another output's partial are kept."""
+    from skyfix.simulate.folders import staged_folder
+
+    out = tmp_path / "acq"
+    stale = tmp_path / ".acq.k1ll3d.partial"
+    stale.mkdir()
+    (stale / "frame_000.png").write_bytes(b"half")
+    kept = [tmp_path / ".acq.s4v3d.old", tmp_path / ".other.abc.partial"]
+    for k in kept:
+        k.mkdir()
+    with staged_folder(out, overwrite=False) as tmp:
+        (tmp / "acquisition.json").write_text("{}")
+    assert (out / "acquisition.json").is_file() and not stale.exists()
+    assert all(k.is_dir() for k in kept)

@@ -9,6 +9,7 @@ import os
 import shutil
 import tempfile
 from contextlib import contextmanager
+from glob import escape as glob_escape
 from pathlib import Path
 
 from ..errors import OutputExistsError
@@ -75,6 +76,11 @@ def staged_folder(out, overwrite: bool):
     block succeeds, so a failure or a kill leaves any earlier ``out`` as it was."""
     out = check_out_folder(out, overwrite)
     out.parent.mkdir(parents=True, exist_ok=True)
+    # what a killed run of the same output left half-rendered (never an ``.old``: that can be the
+    # earlier output itself, moved aside by a run killed while swapping folders)
+    for stale in out.parent.glob(f".{glob_escape(out.name)}.*.partial"):
+        if stale.is_dir() and not stale.is_symlink():
+            shutil.rmtree(stale, ignore_errors=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
     try:
         yield tmp
