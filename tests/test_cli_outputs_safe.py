@@ -363,3 +363,16 @@ def test_a_rerun_clears_what_a_killed_run_of_the_same_output_left(tmp_path):
         (tmp / "acquisition.json").write_text("{}")
     assert (out / "acquisition.json").is_file() and not stale.exists()
     assert all(k.is_dir() for k in kept)
+
+
+@pytest.mark.parametrize("args, says", [
+    (("--mode", "panorama", "--frames", 3, "--pan-step-deg", 10),
+     "--frames, --pan-step-deg: not read in --mode panorama"),
+    (("--mode", "panorama", "--camera", "wide"), "--camera: not read in --mode panorama"),
+    (("--pano-size", 400, 100), "--pano-size: not read in --mode frames"),
+])
+def test_simulate_refuses_options_its_mode_does_not_read(dem, tmp_path, args, says):
+    """They were ignored without a word."""
+    r = run("simulate", dem, "--x", 1000, "--y", 1000, "--yaw-deg", 0, *args, "-o", tmp_path / "s")
+    assert r.exit_code == 2 and says in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "s").exists()

@@ -326,7 +326,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 else:
                     turn = direction_error_deg(src_crs, src.bounds)
                     utm = _crs_name(utm_crs_for((w + e) / 2, (s + n) / 2))
-                    # only `horizon` takes --crs: the advice is one that works for every command
+                    # only horizon and simulate take --crs: this advice works for every command
                     log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
                                 "%.1f %%)%s: horizons are distorted by as much; to avoid it, "
                                 "reproject it to a conformal CRS, its UTM zone: gdalwarp -t_srs "

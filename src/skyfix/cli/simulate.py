@@ -5,10 +5,29 @@ from __future__ import annotations
 import click
 
 from .._io import writing_to
+from ..errors import ParameterError
 
 CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [0, 1]: dust, clouds "
                   "(Earth), snow (Earth), lake (Earth), rocks, glare, overexposed, dark, blur. "
                   "Example: dust:0.5,rocks.")
+
+
+#: options that only one --mode reads: given with the other, they were ignored without a word
+MODE_OPTIONS = {"frames": ("camera", "frames", "pan_start_deg", "pan_step_deg", "tilt_deg"),
+                "panorama": ("pano_size",)}
+
+
+def _check_mode_options(mode: str) -> None:
+    """Refuse an option given on the command line that ``mode`` does not read."""
+    ctx = click.get_current_context()
+    given = [name for other, names in MODE_OPTIONS.items() if other != mode for name in names
+             if ctx.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE]
+    if given:
+        flags = ", ".join("--" + g.replace("_", "-") for g in given)
+        many = len(given) > 1
+        raise ParameterError(f"{flags}: not read in --mode {mode} ({'they are' if many else 'it is'} "
+                             f"for --mode {'frames' if mode == 'panorama' else 'panorama'}): drop "
+                             f"{'them' if many else 'it'}")
 
 
 @click.command("simulate")
@@ -58,6 +77,7 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
                             simulate_acquisition)
 
     # Fail on bad options before loading anything (simulate_acquisition checks them all again).
+    _check_mode_options(mode)
     cond = Conditions.parse(conditions)
     check_render_options(mode=mode, camera=camera, camera_height_m=camera_height_m, tilt_deg=tilt_deg,
                   planet=planet, seed=seed, frames=frames, pan_start_deg=pan_start_deg,
