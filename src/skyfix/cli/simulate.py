@@ -50,7 +50,7 @@ def _check_mode_options(mode: str) -> None:
               help="Pan step [deg] (default: 2/3 of the field of view).")
 @click.option("--tilt-deg", type=float, default=15.0, show_default=True,
               help="Mast tilt of every frame, up positive [deg] (the default of evaluate and demo too; "
-                   "a panorama is levelled and ignores it).")
+                   "frames only: a panorama is levelled).")
 @click.option("--prior-pitch-deg", type=float, default=None,
               help="Inclinometer pitch to report, within +-60 [deg] (default: true).")
 @click.option("--prior-roll-deg", type=float, default=None,
