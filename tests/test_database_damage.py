@@ -222,6 +222,9 @@ def test_spoiled_coarse_index_chunk_is_named_and_redone(dem_path, clean_db, tmp_
 
 
 # --- 4: metadata damaged -------------------------------------------------------------------------
+RECORD = "its metadata disagrees with its build record: "
+
+
 @pytest.mark.parametrize("key, value, says", [
     ("grid.spacing_m", "twenty", "grid.spacing_m must be a number > 0, got 'twenty'"),
     ("grid.spacing_m", 0, "grid.spacing_m must be a number > 0, got 0"),
@@ -233,8 +236,13 @@ def test_spoiled_coarse_index_chunk_is_named_and_redone(dem_path, clean_db, tmp_
     ("elevation.scale_deg", "0.01", "elevation.scale_deg must be a number > 0"),
     ("dem", "hills.tif", "dem must be an object"),
     ("format_version", "1", "format_version must be a whole number"),
-    ("grid.shape", [20, 25], "array elevation has shape (20, 24, 72)"),
-    ("azimuth_bins", 36, "array elevation has shape (20, 24, 72)"),
+    # numbers of the right kind that are not what was built: the search read them as the store's
+    # geometry and answered from it (verify --samples 0 passed)
+    ("grid.shape", [20, 25], RECORD + "grid.shape [20, 25] (the build made [20, 24])"),
+    ("azimuth_bins", 36, RECORD + "azimuth_bins 36 (the build made 72)"),
+    ("grid.spacing_m", 20.0, RECORD + "grid.spacing_m 20.0 (the build made 10.0)"),
+    ("grid.x0", 400.0, RECORD + "grid.x0 400.0 (the build made 300.0)"),
+    ("elevation.scale_deg", 0.02, RECORD + "elevation.scale_deg 0.02 (the build made 0.01)"),
 ])
 def test_damaged_metadata_is_named(clean_db, tmp_path, key, value, says):
     db_path = _copy(clean_db, tmp_path)

@@ -103,6 +103,30 @@ def check_attrs(path: Path, attrs: dict) -> None:
             raise damaged(path, f"{key} must be {_KIND_WORDS[kind]}, got {v!r}")
 
 
+def check_build_record(path: Path, attrs: dict) -> None:
+    """The geometry a search reads (``grid``, ``elevation.scale_deg``, the bins, the camera) must be
+    what the build record says was built: an edited ``grid.spacing_m`` or ``x0`` made ``locate``
+    answer from the wrong geometry without a word (``verify --samples 0`` passed it)."""
+    build = attrs.get("build")
+    if not isinstance(build, dict):
+        return  # a store from before the build record: nothing to compare with
+    try:
+        want = Grid.from_bounds(build["bounds"], build["spacing_m"],
+                                build.get("block_positions", attrs["grid"]["block_shape"][0])).to_attr()
+    except Exception as e:  # noqa: BLE001 - a damaged record, whatever its fault
+        raise damaged(path, f"its build record cannot be read ({type(e).__name__}: {e})") from None
+    said = {f"grid.{k}": (attrs["grid"].get(k), want[k])
+            for k in ("x0", "y0", "spacing_m", "shape", "block_shape")}
+    said["elevation.scale_deg"] = (attrs["elevation"].get("scale_deg"), build.get("scale_deg"))
+    for k in ("azimuth_bins", "camera_height_m", "max_distance_m", "planet"):
+        said[k] = (attrs.get(k), build.get(k))
+    wrong = [f"{k} {a!r} (the build made {b!r})" for k, (a, b) in said.items()
+             if b is not None and a != b and not (isinstance(a, (int, float)) and isinstance(b, (int, float))
+                                                  and math.isclose(a, b, rel_tol=1e-12))]
+    if wrong:
+        raise damaged(path, "its metadata disagrees with its build record: " + "; ".join(wrong))
+
+
 def check_arrays(path: Path, g, attrs: dict) -> None:
     """The arrays' own metadata must agree with the recorded grid (one chunk per block)."""
     ny, nx = attrs["grid"]["shape"]

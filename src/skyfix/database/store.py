@@ -15,7 +15,8 @@ from .. import __version__
 from ..errors import DatabaseError, ParameterError
 from ..planets import Planet
 from .chunks import chunk_reader
-from .integrity import (absent_data, check_arrays, check_attrs, damaged, data_missing_message,
+from .integrity import (absent_data, check_arrays, check_attrs, check_build_record, damaged,
+                        data_missing_message,
                         done_blocks, indexed_blocks, is_int, root_state)
 from .layout import (COARSE, COARSE_STRIDE, DATA_ARRAYS, FORMAT, FORMAT_VERSION, Grid, MARKER_DIR,
                      MISSING, SCALE_DEG, coarse_block_slices, dequantise, marker_name)
@@ -355,6 +356,7 @@ def open_database(path, *, allow_incomplete: bool = False) -> SkylineDatabase:
         raise DatabaseError(f"{path} has format version {version}, newer than this "
                             f"skyfix ({__version__}) reads ({FORMAT_VERSION}): upgrade skyfix")
     check_attrs(path, attrs)
+    check_build_record(path, attrs)
     try:
         g = zarr.open_group(str(path), mode="r")
         for name in DATA_ARRAYS:
