@@ -39,10 +39,10 @@ def local_tm_crs(crs, lon0: float, lat0: float):
     return ProjectedCRS(conversion=conv, geodetic_crs=geo, name=name)
 
 
-def scale_error(crs, bounds, n: int = 5) -> float:
-    """The largest |scale - 1| [fraction] of a projected ``crs`` over ``bounds`` (xmin, ymin, xmax,
-    ymax) [m], meridional and parallel scale on an n x n grid of points, on the CRS's own body
-    (PROJ's factors). NaN where PROJ cannot say."""
+def _worst_factor(crs, bounds, n: int, of) -> float:
+    """The largest of the values ``of(factors)`` gives (a tuple) over ``bounds`` (xmin, ymin, xmax,
+    ymax) [m] of a projected ``crs``: PROJ's factors on an n x n grid of points, on the CRS's own
+    body, from 0. NaN where PROJ cannot say."""
     from pyproj import CRS, Proj, Transformer
 
     c = CRS.from_user_input(crs)
@@ -54,12 +54,18 @@ def scale_error(crs, bounds, n: int = 5) -> float:
         worst = 0.0
         for x in xs:
             for y in ys:
-                lon, lat = to_geo.transform(x, y)
-                f = proj.get_factors(lon, lat)
-                worst = max(worst, abs(f.meridional_scale - 1.0), abs(f.parallel_scale - 1.0))
+                worst = max(worst, *of(proj.get_factors(*to_geo.transform(x, y))))
         return worst
     except Exception:  # noqa: BLE001 - pyproj raises several types for a CRS it cannot use
         return float("nan")
+
+
+def scale_error(crs, bounds, n: int = 5) -> float:
+    """The largest |scale - 1| [fraction] of a projected ``crs`` over ``bounds`` (xmin, ymin, xmax,
+    ymax) [m], meridional and parallel scale on an n x n grid of points, on the CRS's own body
+    (PROJ's factors). NaN where PROJ cannot say."""
+    return _worst_factor(crs, bounds, n, lambda f: (abs(f.meridional_scale - 1.0),
+                                                    abs(f.parallel_scale - 1.0)))
 
 
 def direction_error_deg(crs, bounds, n: int = 5) -> float:
@@ -69,22 +75,7 @@ def direction_error_deg(crs, bounds, n: int = 5) -> float:
     an equal-area one turns directions where its two scales differ (USA Albers over the Sierra
     Nevada: 0.55 deg). A narrow view's heading is off by up to as much. NaN where PROJ cannot
     say."""
-    from pyproj import CRS, Proj, Transformer
-
-    c = CRS.from_user_input(crs)
-    try:
-        to_geo = Transformer.from_crs(c, c.geodetic_crs, always_xy=True)
-        proj = Proj(c)
-        worst = 0.0
-        for i in range(n):
-            for j in range(n):
-                x = bounds[0] + (bounds[2] - bounds[0]) * i / (n - 1)
-                y = bounds[1] + (bounds[3] - bounds[1]) * j / (n - 1)
-                f = proj.get_factors(*to_geo.transform(x, y))
-                worst = max(worst, 0.5 * f.angular_distortion)
-        return worst
-    except Exception:  # noqa: BLE001 - pyproj raises several types for a CRS it cannot use
-        return float("nan")
+    return _worst_factor(crs, bounds, n, lambda f: (0.5 * f.angular_distortion,))
 
 
 def geographic_bounds(crs, bounds):
