@@ -38,15 +38,19 @@ def _detector_used(profile_path, detector):
     return None if profile_path is not None else (detector or DEFAULT_METHOD)
 
 
-def _input_files(acq_dir, profile_path, dem_paths) -> list:
+def _read_acquisition(acq_dir):
+    """The acquisition's description (no image read), once per run; None with a --profile."""
+    if acq_dir is None:
+        return None
+    from ..formats import load_acquisition
+
+    return load_acquisition(acq_dir)
+
+
+def _input_files(acq, profile_path, dem_paths) -> list:
     """The files a locate or heading run reads (the acquisition's own, the profile, the DEMs): no
     output may replace one of them."""
-    files = [profile_path, *(dem_paths or ())]
-    if acq_dir is not None:
-        from ..formats import load_acquisition
-
-        files += load_acquisition(acq_dir).files()
-    return files
+    return [profile_path, *(dem_paths or ()), *(acq.files() if acq is not None else ())]
 
 
 def _check_prior_area(db, dem, prior, radius_m) -> None:
@@ -54,9 +58,9 @@ def _check_prior_area(db, dem, prior, radius_m) -> None:
     database position, or, searched on the DEM alone, whose centre lies off the DEM."""
     if prior is None:
         return
-    if db is not None:
-        import numpy as np
+    import numpy as np
 
+    if db is not None:
         xs, ys = np.asarray(db.x_coords), np.asarray(db.y_coords)
         # on a rectangular grid the nearest position takes the nearest column and the nearest row
         gx = xs[np.argmin(np.abs(xs - prior[0]))]
@@ -68,20 +72,18 @@ def _check_prior_area(db, dem, prior, radius_m) -> None:
                 f"+- {radius_m:g} m: the nearest is {d:.1f} m away; the database spans x "
                 f"{xs.min():.1f}..{xs.max():.1f}, y {ys.min():.1f}..{ys.max():.1f}")
     elif dem is not None:
-        import numpy as np
-
         dem.require_inside(np.array([prior[0]]), np.array([prior[1]]), "prior position")
 
 
-def _read_profile(acq_dir, profile_path, frames=None, detector=None, azimuth_bins=360):
-    """Profile from ``--profile`` JSON, else from the acquisition folder, its images detected with
+def _read_profile(acq, profile_path, frames=None, detector=None, azimuth_bins=360):
+    """Profile from ``--profile`` JSON, else from the acquisition ``acq`` (:func:`_read_acquisition`;
+    one of the two, as :func:`_check_source` made sure), its images detected with
     ``detector`` (a method name; None: the default); with the attitude prior (pitch, roll) [deg]
     and the camera height [m] (None when the profile does not say). ``frames``, a list, receives
     each frame's detected rows (:class:`~skyfix.pose.image_plane.FrameRows`) when the profile
     comes from frames."""
-    from ..formats import load_acquisition, read_profile_json
+    from ..formats import read_profile_json
 
-    _check_source(acq_dir, profile_path)
     if profile_path is not None:
         # the reader validates frame, attitude_prior and camera_height_m, naming the field
         prof = read_profile_json(profile_path, frame="body")
@@ -92,7 +94,6 @@ def _read_profile(acq_dir, profile_path, frames=None, detector=None, azimuth_bin
 
     from ..profile import acquisition_profile
 
-    acq = load_acquisition(acq_dir)
     n = len(acq.frames) or 1
     with stage(f"skyline detected and profiled ({n} image{'s' * (n > 1)})") as st:
         if frames is not None and acq.frames and acq.panorama is None:
@@ -295,9 +296,10 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     if score_map is not None and db_path is None:
         raise ParameterError("--score-map needs --db (the map is the database's score)")
     dem_sigma_m = dem_sigma(dem_sigma_m)
+    acq = _read_acquisition(acq_dir)
     check_outputs(overwrite, ("--output", out, None), ("--geojson", geojson, None),
                   ("--score-map", score_map, GEOTIFF_SUFFIXES), ("--plot", plot, PLOT_FORMATS),
-                  inputs=_input_files(acq_dir, profile_path, dem_paths))
+                  inputs=_input_files(acq, profile_path, dem_paths))
     # The database and the DEM are opened and checked against each other, and the acquisition's
     # description read, before any image is (detection is the long part).
     db = dem = None
@@ -314,11 +316,8 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
         prior = point_xy(prior_x, prior_y, prior_lon, prior_lat,
                          getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else ""))
         _check_prior_area(db, dem, prior, prior_radius_m)
-        if acq_dir is not None:
-            from ..formats import load_acquisition
-
-            cam_h_declared = load_acquisition(acq_dir).camera_height_m
-            notes += _check_camera_height(db, db_path, cam_h_declared)
+        if acq is not None:
+            notes += _check_camera_height(db, db_path, acq.camera_height_m)
         st.result = ", ".join(filter(None, [
             f"database of {len(db.x_coords) * len(db.y_coords):,} positions at {db.spacing_m:g} m"
             if db is not None else "", f"DEM {dem.shape[1]} x {dem.shape[0]} cells of {dem.cell_m:g} m"
@@ -326,7 +325,7 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     frames = []  # the frames' detected rows: a narrow view's attitude is also solved in the image
     # the profile in the database's bins: a store of 90 bins made a 360-bin profile it then
     # refused, after detection
-    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames, detector,
+    prof, pp, pr, cam_h = _read_profile(acq, profile_path, frames, detector,
                                         int(db.azimuth_bins) if db is not None else 360)
     if profile_path is not None:
         notes += _check_camera_height(db, db_path, cam_h)
@@ -419,15 +418,16 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
         raise ParameterError(f"--position-sigma-m must be a finite number of metres >= 0, got "
                              f"{position_sigma_m}")
     dem_sigma_m = dem_sigma(dem_sigma_m)
+    acq = _read_acquisition(acq_dir)
     check_outputs(overwrite, ("--output", out, None),
-                  inputs=_input_files(acq_dir, profile_path, dem_paths))
+                  inputs=_input_files(acq, profile_path, dem_paths))
     # the DEM and the position are checked before any image is read (detection is the long part)
     dem_path = " + ".join(dem_paths)
     dem = load_dems(list(dem_paths))
     x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
     dem.require_inside(np.array([x]), np.array([y]), "rough position")
     frames = []  # the frames' detected rows: a narrow view is also solved in the image plane
-    prof, pp, pr, cam_h = _read_profile(acq_dir, profile_path, frames, detector)
+    prof, pp, pr, cam_h = _read_profile(acq, profile_path, frames, detector)
     h = camera_height_m if camera_height_m is not None else (cam_h if cam_h is not None else 1.5)
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     if prior_north == "true" and not math.isfinite(conv) and window_deg < 180:
