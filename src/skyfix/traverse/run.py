@@ -282,8 +282,11 @@ def check_output(trav: Traverse, out_dir, *, config: TraverseConfig = TraverseCo
     folder that is no traverse output) before any work; returns ``new``, ``resume`` or
     ``replace`` (``overwrite``). ``afresh``: how a refusal says to start afresh (None: no way
     but another -o)."""
-    action = plan_folder(out_dir, OUTPUT, run_params(trav, config, inputs), overwrite=overwrite,
-                         afresh=afresh)
+    return _plan_output(trav, out_dir, run_params(trav, config, inputs), overwrite, afresh)
+
+
+def _plan_output(trav: Traverse, out_dir, params: dict, overwrite: bool, afresh) -> str:
+    action = plan_folder(out_dir, OUTPUT, params, overwrite=overwrite, afresh=afresh)
     if action == "resume":
         read_done(Path(out_dir) / STOPS_FILE, trav.stops)  # the lines themselves must fit too
     return action
@@ -306,9 +309,10 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
     from ..north import grid_heading_from_true
 
     out_dir = Path(out_dir)
-    action = check_output(trav, out_dir, config=config, inputs=inputs, overwrite=overwrite,
-                          afresh=afresh)
-    begin_folder(out_dir, OUTPUT, run_params(trav, config, inputs), action, about)
+    # the parameters once: they read every stop's acquisition.json and its images' sizes
+    params = run_params(trav, config, inputs)
+    begin_folder(out_dir, OUTPUT, params, _plan_output(trav, out_dir, params, overwrite, afresh),
+                 about)
     path = out_dir / STOPS_FILE
     rows = read_done(path, trav.stops)
     leg_m = config.leg_length_m or trav.leg_length_m
