@@ -376,3 +376,26 @@ def test_simulate_refuses_options_its_mode_does_not_read(dem, tmp_path, args, sa
     r = run("simulate", dem, "--x", 1000, "--y", 1000, "--yaw-deg", 0, *args, "-o", tmp_path / "s")
     assert r.exit_code == 2 and says in r.output and "Traceback" not in r.output, r.output
     assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("args, says", [
+    (("--set", "SCOM", "--tilt-deg", 40), "--tilt-deg: not read by --set SCOM"),
+    (("--set", "scom", "--tilt-deg", 15), "--tilt-deg: not read by --set SCOM"),
+    (("--set", "REF", "--mode", "panorama", "--tilt-deg", 30),
+     "--tilt-deg: not read in --mode panorama"),
+    (("--set", "REF", "--pano-size", 400, 100), "--pano-size: not read in --mode frames"),
+])
+def test_simulate_set_refuses_options_it_does_not_read(dem, tmp_path, monkeypatch, args, says):
+    """SCOM rendered at its own tilt, exit 0, whatever --tilt-deg said; so did a panorama."""
+    import skyfix.simulate
+
+    def reached(*a, **k):
+        raise Reached
+
+    monkeypatch.setattr(skyfix.simulate, "simulate_set", reached)
+    r = run("simulate-set", dem, *args, "--cases", 1, "-o", tmp_path / "s")
+    assert r.exit_code == 2 and says in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "s").exists()
+    # without the option the set is rendered
+    r = run("simulate-set", dem, "--set", args[1], "--cases", 1, "-o", tmp_path / "s")
+    assert isinstance(r.exception, Reached), r.output

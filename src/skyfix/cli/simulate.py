@@ -17,11 +17,16 @@ MODE_OPTIONS = {"frames": ("camera", "frames", "pan_start_deg", "pan_step_deg", 
                 "panorama": ("pano_size",)}
 
 
+def _given(name: str) -> bool:
+    """Whether the option ``name`` was given on the command line (not its default)."""
+    source = click.get_current_context().get_parameter_source(name)
+    return source is click.core.ParameterSource.COMMANDLINE
+
+
 def _check_mode_options(mode: str) -> None:
     """Refuse an option given on the command line that ``mode`` does not read."""
-    ctx = click.get_current_context()
     given = [name for other, names in MODE_OPTIONS.items() if other != mode for name in names
-             if ctx.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE]
+             if _given(name)]
     if given:
         flags = ", ".join("--" + g.replace("_", "-") for g in given)
         many = len(given) > 1
@@ -112,8 +117,8 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
 @click.option("--frames", type=int, default=None, help="Frames per case (default: a full turn).")
 @click.option("--camera-height-m", type=float, default=1.5, show_default=True)
 @click.option("--tilt-deg", type=float, default=15.0, show_default=True,
-              help="Mast tilt of the frames, up positive [deg] (SCOM sets its own; the default of "
-                   "simulate, evaluate and demo too).")
+              help="Mast tilt of the frames, up positive [deg] (SCOM sets its own and refuses it; "
+                   "the default of simulate, evaluate and demo too).")
 @click.option("--planet", default=None,
               help="earth, mars, moon or a radius [m]; default: the body of the DEM's CRS (an Earth CRS may stand in for any body).")
 @click.option("--crs", default=None, help="Target CRS when the DEM must be reprojected.")
@@ -138,6 +143,12 @@ def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, 
     if cases < 1:
         raise ParameterError(f"cases must be >= 1, got {cases}")
     # Fail on bad options before loading anything (simulate_set checks them all again).
+    _check_mode_options(mode)
+    if name.upper() == "SCOM" and _given("tilt_deg"):
+        # SCOM tilts each case's camera itself: --tilt-deg was rendered at another tilt, exit 0
+        raise ParameterError("--tilt-deg: not read by --set SCOM (it tilts each case's camera so "
+                             "that the skyline leaves the top of the frame): drop it, or choose "
+                             "another set")
     check_render_options(mode=mode, camera=camera, camera_height_m=camera_height_m, tilt_deg=tilt_deg,
                   planet=planet, seed=seed, frames=frames, pano_size=pano_size)
     if map_errors and world_dem:
