@@ -2,7 +2,7 @@
 
 The CLI shows these lines at its default verbosity (details of each stage at ``-v``, third-party
 debug only at ``-vvv``); as a library, skyfix only logs them, and a program that does not
-configure logging sees nothing.
+configure logging sees nothing. Progress bars follow them (:func:`bars_shown`): none with ``-q``.
 """
 
 from __future__ import annotations
@@ -38,3 +38,9 @@ def stage(what: str):
         log.info("%s: stopped after %.1f s", what, s.seconds)
         raise
     log.info("%s%s (%.1f s)", what, f": {s.result}" if s.result else "", s.seconds)
+
+
+def bars_shown() -> bool:
+    """Whether a command draws progress bars: where its stage lines are shown (not with -q, whose
+    stderr holds errors only)."""
+    return log.isEnabledFor(logging.INFO)

@@ -32,7 +32,7 @@ import click
 @click.option("--overwrite", is_flag=True,
               help="Delete an existing database and start afresh (only once every option is checked "
                    "and the workers are up).")
-@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@click.option("--no-progress", is_flag=True, help="No progress bar (nor with -q).")
 @click.option("--dem", "more_dems", multiple=True, type=click.Path(dir_okay=False),
               help="Another DEM of the same place (repeatable): a stack, the finest DEM winning "
                    "wherever it has heights (HiRISE inside CTX inside MOLA).")
@@ -46,12 +46,14 @@ def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_dis
     """
     from .._io import check_folder_output
     from ..database import build_database
+    from ..progress import bars_shown
 
     check_folder_output(out)
     r = build_database([dem, *more_dems] if more_dems else dem, out, bounds, spacing_m, camera_height_m=camera_height_m,
                        azimuth_bins=azimuth_bins, max_distance_m=max_distance_m, planet=planet,
                        workers=workers, scheduler=scheduler, overwrite=overwrite,
-                       progress=not no_progress, block=block_positions, renderer=renderer)
+                       progress=not no_progress and bars_shown(), block=block_positions,
+                       renderer=renderer)
     if r.indexed:
         click.echo(f"{r.path}: coarse index added to {r.indexed} block{'s' * (r.indexed != 1)} built earlier (the search "
                    "now decodes only the blocks it needs)")

@@ -138,6 +138,19 @@ def configure_logging(verbose: int, quiet: bool) -> None:
     plain = logging.StreamHandler(sys.stderr)
     plain.setFormatter(logging.Formatter("%(message)s"))
     stages.addHandler(plain)
+    if quiet:
+        quiet_opencv()
+
+
+def quiet_opencv() -> None:
+    """OpenCV's warnings to errors: it logs on its own, to file descriptor 2, past Python's
+    logging ("[ WARN:0@0.0] ... TIFF_Warning ..." for every GeoTIFF tag, with -q too)."""
+    import os
+
+    os.environ["OPENCV_LOG_LEVEL"] = "ERROR"  # read when cv2 is loaded: most commands load it later
+    cv2 = sys.modules.get("cv2")
+    if cv2 is not None:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
 
 
 def main():  # console-script entry point

@@ -135,6 +135,7 @@ def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, 
     """Render a named robustness set of acquisitions (one subfolder per case)."""
     from ..dem import load_dem
     from ..errors import ParameterError
+    from ..progress import bars_shown
     from ..simulate import SETS, check_render_options
     from ..simulate import simulate_set as run_set
 
@@ -163,7 +164,8 @@ def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, 
     with writing_to(out):
         folders = run_set(d, name, cases, seed, out, area=area or None, camera=camera, mode=mode,
                           frames=frames, camera_height_m=camera_height_m, planet=planet,
-                          overwrite=overwrite, tilt_deg=tilt_deg, pano_size=pano_size, progress=True,
+                          overwrite=overwrite, tilt_deg=tilt_deg, pano_size=pano_size,
+                          progress=bars_shown(),
                           map_errors=MapErrors() if map_errors else None, world=world)
     click.echo(f"{len(folders)} cases in {out}")
 

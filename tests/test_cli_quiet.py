@@ -1,0 +1,74 @@
+"""``skyfix -q``: only errors on standard error (no stage lines, warnings or progress bars, nor
+what OpenCV says on its own past Python's logging)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from skyfix.cli.main import cli
+from skyfix.dem import Dem, write_dem
+
+
+@pytest.fixture(scope="module")
+def hill(tmp_path_factory):
+    n = 61
+    yy, xx = np.mgrid[0:n, 0:n] * 20.0
+    z = 100.0 + 300.0 * np.exp(-((xx - 900.0) ** 2 + (yy - 400.0) ** 2) / (2 * 250.0**2))
+    return write_dem(tmp_path_factory.mktemp("dem") / "hill.tif", Dem.from_array(z, 20.0))
+
+
+@pytest.fixture(scope="module")
+def geotiff_image(tmp_path_factory):
+    """A photo saved as a GeoTIFF: OpenCV warns of each GeoTIFF tag it does not know."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    yy, xx = np.mgrid[0:120, 0:160]
+    sky = np.where(yy < 50 + 10 * np.sin(xx / 15.0), 200, 60).astype(np.uint8)
+    p = tmp_path_factory.mktemp("img") / "photo.tif"
+    with rasterio.open(p, "w", driver="GTiff", width=160, height=120, count=1, dtype="uint8",
+                       crs="EPSG:32611", transform=from_origin(500000, 4100000, 1, 1)) as f:
+        f.write(sky, 1)
+    return p
+
+
+def skyfix(*args):
+    return subprocess.run([sys.executable, "-m", "skyfix.cli.main", *map(str, args)],
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_quiet_simulate_set_draws_no_progress_bar(hill, tmp_path):
+    args = ("simulate-set", hill, "--set", "REF", "--cases", 1, "--frames", 1, "--camera", "wide")
+    loud = skyfix(*args, "-o", tmp_path / "loud")
+    assert loud.returncode == 0 and "set REF" in loud.stderr, loud.stderr  # the bar, without -q
+    r = skyfix("-q", *args, "-o", tmp_path / "quiet")
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == "" and "1 cases in" in r.stdout
+    assert (tmp_path / "quiet" / "case_000" / "acquisition.json").is_file()
+
+
+def test_quiet_silences_opencv(geotiff_image, tmp_path):
+    loud = skyfix("detect", geotiff_image, "-o", tmp_path / "loud.json")
+    assert loud.returncode == 0 and "TIFF_Warning" in loud.stderr, loud.stderr  # the set-up
+    r = skyfix("-q", "detect", geotiff_image, "-o", tmp_path / "quiet.json")
+    assert r.returncode == 0 and (tmp_path / "quiet.json").is_file(), r.stderr
+    assert "WARN" not in r.stderr, r.stderr
+
+
+def test_quiet_silences_opencv_already_loaded(geotiff_image, tmp_path, capfd, monkeypatch):
+    """In a process that loaded OpenCV before the command line was read (a program calling the
+    CLI), its level is set on the loaded library."""
+    cv2 = pytest.importorskip("cv2")
+    level = cv2.utils.logging.getLogLevel()
+    monkeypatch.delenv("OPENCV_LOG_LEVEL", raising=False)  # put back after the test
+    try:
+        r = CliRunner().invoke(cli, ["-q", "detect", str(geotiff_image), "-o", str(tmp_path / "s.json")])
+        assert r.exit_code == 0, r.output
+        assert "WARN" not in capfd.readouterr().err
+    finally:
+        cv2.utils.logging.setLogLevel(level)
