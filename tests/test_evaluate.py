@@ -88,6 +88,38 @@ def test_evaluate_detect_refuses_a_truth_of_another_size_and_counts_orphans(tmp_
     assert r.exit_code == 2 and ("folder" in r.output or "directory" in r.output)
 
 
+def test_evaluate_detect_refuses_a_truth_naming_another_image(tmp_path, monkeypatch):
+    """Two labels of one size swapped: each was scored on the other image, exit 0."""
+    import json
+
+    import cv2
+
+    import skyfix.detect
+
+    for name, row in (("a", 30), ("b", 50)):
+        img = np.full((80, 120, 3), 90, np.uint8)
+        img[:row] = 200  # a flat skyline: its first terrain row
+        cv2.imwrite(str(tmp_path / f"{name}.png"), img)
+    truth = {"width": 120, "height": 80}
+    (tmp_path / "a.skyline.json").write_text(json.dumps({**truth, "image": "b.png", "rows": [49.5] * 120}))
+    (tmp_path / "b.skyline.json").write_text(json.dumps({**truth, "image": "a.png", "rows": [29.5] * 120}))
+    detected = []
+    real = skyfix.detect.detect_skyline
+    monkeypatch.setattr(skyfix.detect, "detect_skyline",
+                        lambda img, **k: detected.append(k.get("name")) or real(img, **k))
+    r = run("evaluate-detect", "--images", tmp_path)
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert "a.skyline.json is the truth of 'b.png'" in r.output and "not of a.png" in r.output
+    assert detected == []  # refused before any detection
+    # named rightly, or with no 'image' at all (it is optional), each is scored on its own image
+    (tmp_path / "a.skyline.json").write_text(json.dumps({**truth, "image": "a.png", "rows": [29.5] * 120}))
+    (tmp_path / "b.skyline.json").write_text(json.dumps({**truth, "rows": [49.5] * 120}))
+    from skyfix.evaluate import evaluate_detection
+
+    rows = evaluate_detection(tmp_path)
+    assert [r["image"] for r in rows] == ["a", "b", "all"] and rows[-1]["within_3px"] > 0.9
+
+
 def test_a_negative_dem_sigma_is_refused_before_any_case(tmp_dem_file, tmp_path):
     dem = tmp_dem_file(plane_dem(2_000, 20))
     r = run("evaluate", "--dem", dem, "--scenario", 2, "--cases", 1, "--dem-sigma-m", -1,

@@ -362,7 +362,10 @@ def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig, *
 
 
 def evaluate_detection(images_dir, out=None, *, method: str | None = None) -> list[dict]:
-    """Score the detector on every ``NAME.png`` with a ``NAME.skyline.json`` truth in a folder."""
+    """Score the detector on every ``NAME.png`` with a ``NAME.skyline.json`` truth in a folder.
+
+    Truth and image are paired by name; a truth whose ``image`` field names another image is
+    refused, before any detection."""
     from .detect import DEFAULT_METHOD, combine_scores, detect_skyline, score_skyline
     from .formats import read_skyline_json
     from .profile import read_rgb
@@ -372,17 +375,25 @@ def evaluate_detection(images_dir, out=None, *, method: str | None = None) -> li
     images_dir = Path(images_dir)
     if not images_dir.is_dir():
         raise ParameterError(f"{images_dir} is not a folder of images with *.skyline.json truth")
-    truths = sorted(images_dir.glob("*.skyline.json"))
-    rows = []
+    pairs = []
     no_image = []
-    for tpath in truths:
+    for tpath in sorted(images_dir.glob("*.skyline.json")):
         name = tpath.name[: -len(".skyline.json")]
         img_path = images_dir / f"{name}.png"
         if not img_path.exists():
             no_image.append(tpath.name)
             continue
-        img = read_rgb(img_path)
         truth = read_skyline_json(tpath)
+        if truth.image and Path(truth.image).name != img_path.name:
+            # swapped or copied labels of one size passed the size check and were scored
+            raise ParameterError(
+                f"{tpath.name} is the truth of {truth.image!r} (its 'image' field), not of "
+                f"{img_path.name} beside it (NAME.skyline.json is scored on NAME.png): rename it "
+                f"{Path(truth.image).stem}.skyline.json, or correct its 'image' field")
+        pairs.append((name, img_path, tpath, truth))
+    rows = []
+    for name, img_path, tpath, truth in pairs:
+        img = read_rgb(img_path)
         if (truth.width, truth.height) != (img.shape[1], img.shape[0]):
             # scoring a truth drawn on another image would be silently meaningless
             raise ParameterError(

@@ -98,7 +98,8 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
 
 @click.command("evaluate-detect")
 @click.option("--images", "images_dir", required=True, type=click.Path(file_okay=False),
-              help="Folder of NAME.png with NAME.skyline.json truth (as ../shared/data/marsscapes-dev).")
+              help="Folder of NAME.png with NAME.skyline.json truth, paired by name (as "
+                   "../shared/data/marsscapes-dev); a truth whose 'image' names another image is refused.")
 @click.option("--method", type=click.Choice(METHODS), default=DEFAULT_METHOD, show_default=True)
 @click.option("-o", "--out", "--output", "output", type=click.Path(dir_okay=False), default=None,
               help="Write the table as CSV.")
