@@ -106,3 +106,46 @@ def _truth(acq):
 
     t = acq["truth"]
     return Truth(t["x"], t["y"], t["yaw_deg"], t["pitch_deg"], t["roll_deg"])
+
+
+@pytest.fixture(scope="module")
+def map_and_world_files(map_dem, tmp_path_factory):
+    """The map as a file, and a world DEM of its north-west quarter only (the same CRS)."""
+    from skyfix.dem import Dem, write_dem
+
+    d = tmp_path_factory.mktemp("world")
+    q = Dem(map_dem.z[:100, :100], map_dem.x0, map_dem.y0, map_dem.dx, map_dem.dy,
+            map_dem.crs_wkt, map_dem.crs_name)
+    return write_dem(d / "map.tif", map_dem), write_dem(d / "quarter.tif", q)
+
+
+def test_a_world_dem_short_of_the_map_is_named_before_any_rendering(map_and_world_files, tmp_path):
+    """It was refused as 'rover position ... outside the DEM' at the first case or stop off it
+    (the ones before it rendered, a traverse's folder begun), naming neither the world DEM nor
+    what it had to cover."""
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+
+    def run(*args):
+        return CliRunner().invoke(cli, [str(a) for a in args])
+
+    m, quarter = map_and_world_files
+    r = run("simulate-set", m, "--set", "REF", "--cases", 3, "--frames", 1, "--camera", "wide",
+            "--world-dem", quarter, "-o", tmp_path / "set")
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert "the world DEM (quarter.tif) covers x 500000.0..501980.0" in r.output
+    assert "not all of the area where cases are drawn on the map, x" in r.output
+    assert "a smaller --area" in r.output and not (tmp_path / "set").exists()
+    r = run("simulate-traverse", m, "-o", tmp_path / "trav", "--length-m", 3000,
+            "--stop-spacing-m", 500, "--mode", "panorama", "--pano-size", 256, 64,
+            "--world-dem", quarter)
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert "the world DEM (quarter.tif) covers" in r.output and "the traverse's stops" in r.output
+    assert not (tmp_path / "trav").exists()
+    # an area inside the quarter is rendered from it
+    r = run("simulate-set", m, "--set", "REF", "--cases", 1, "--frames", 1, "--camera", "wide",
+            "--area", 500500, 4198500, 501500, 4199500, "--world-dem", quarter, "-o", tmp_path / "in")
+    assert r.exit_code == 0, r.output
+    acq = json.loads((tmp_path / "in" / "case_000" / "acquisition.json").read_text())
+    assert acq["simulation"]["world"]["source"].endswith("quarter.tif")

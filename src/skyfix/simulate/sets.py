@@ -18,7 +18,7 @@ from ..planets import resolve_planet
 from .acquisition import (PANO_HEIGHT, PANO_WIDTH, check_render_options, check_seed,
                           simulate_acquisition)
 from .folders import check_out_folder, staged_folder
-from .world import MapErrors, world_dem, world_record
+from .world import MapErrors, check_world_covers, world_dem, world_record
 
 
 
@@ -159,6 +159,9 @@ def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
     # the set is rendered into a hidden sibling that replaces ``out`` only once complete.
     check_render_options(mode=mode, camera=camera, camera_height_m=camera_height_m, tilt_deg=tilt_deg,
                   planet=planet, seed=seed, frames=frames, pano_size=pano_size)
+    if world is not None:
+        check_world_covers(world, _check_area(dem, area), "the area where cases are drawn on the map",
+                           "a smaller --area inside both")
     plans = plan_set(dem, name, cases, seed, area=area, camera=camera, mode=mode,
                      camera_height_m=camera_height_m, planet=planet)
     if map_errors is None and str(name).upper() in MAP_ERROR_SETS and world is None:

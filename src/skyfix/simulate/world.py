@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -76,6 +77,22 @@ def world_record(map_errors: MapErrors | None, seed: int, world: Dem | None = No
         return {"map_errors": {**map_errors.to_dict(), "seed": int(seed),
                                "map_offset_m": list(map_offset(map_errors, seed))}}
     return {}
+
+
+def check_world_covers(world: Dem, area, needed: str, remedy: str) -> None:
+    """Refuse a world DEM that does not cover ``area`` (XMIN, YMIN, XMAX, YMAX) [m, the map's
+    CRS], ``needed`` saying what lies there: outside it a rover stands off the world, refused
+    as off "the DEM" only once the cases or stops before it were rendered."""
+    xmin, ymin, xmax, ymax = (float(v) for v in area)
+    wx0, wy0, wx1, wy1 = world.bounds
+    if xmin >= wx0 and ymin >= wy0 and xmax <= wx1 and ymax <= wy1:
+        return
+    name = Path(world.source).name if world.source else "given"
+    crs = world.crs_name or "the map's CRS"
+    raise ParameterError(
+        f"the world DEM ({name}) covers x {wx0:.1f}..{wx1:.1f}, y {wy0:.1f}..{wy1:.1f} in {crs}, "
+        f"not all of {needed}, x {xmin:.1f}..{xmax:.1f}, y {ymin:.1f}..{ymax:.1f}: give a world "
+        f"DEM that covers it, or {remedy}")
 
 
 def recorded_map_offset(simulation: dict | None) -> tuple[float, float]:

@@ -139,7 +139,8 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
     from ..planets import resolve_planet
     from ..simulate import as_conditions, check_render_options, check_seed, simulate_acquisition
     from ..simulate.conditions import check_planet
-    from ..simulate.world import recorded_map_offset, world_dem, world_record
+    from ..simulate.world import (check_world_covers, recorded_map_offset, world_dem,
+                                  world_record)
     from .run import convergence_function
 
     seed = check_seed(seed)
@@ -169,6 +170,10 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
                                  f"DEM is on {pl.name}: drop it") from None
     plan = plan_path(dem, length_m, stop_spacing_m, seed)
     n = plan.x.size
+    if world is not None:
+        check_world_covers(world, (plan.x.min(), plan.y.min(), plan.x.max(), plan.y.max()),
+                           "the traverse's stops on the map", "a shorter traverse (--length-m) "
+                           "or another --seed")
     bad = [k for k in stop_conditions if not 0 <= k < n]
     if bad:
         raise ParameterError(f"stop conditions for stops {bad}: the traverse has stops 0-{n - 1} "
