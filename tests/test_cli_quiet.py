@@ -60,6 +60,18 @@ def test_quiet_silences_opencv(geotiff_image, tmp_path):
     assert "WARN" not in r.stderr, r.stderr
 
 
+def test_quiet_drops_the_summary_lines_on_stderr(geotiff_image, tmp_path):
+    """detect, profile, locate, heading, traverse and simulate-traverse say what they wrote on
+    stderr (and warn there): with -q that stderr held more than errors."""
+    r = skyfix("detect", geotiff_image, "-o", tmp_path / "loud.json")
+    assert r.returncode == 0 and "photo.tif: skyline in" in r.stderr, r.stderr
+    r = skyfix("-q", "detect", geotiff_image, "-o", tmp_path / "quiet.json")
+    assert r.returncode == 0 and (tmp_path / "quiet.json").is_file(), r.stderr
+    assert r.stderr == ""
+    r = skyfix("-q", "detect", tmp_path / "none.png")
+    assert r.returncode == 2 and "Error:" in r.stderr  # errors still are
+
+
 def test_quiet_silences_opencv_already_loaded(geotiff_image, tmp_path, capfd, monkeypatch):
     """In a process that loaded OpenCV before the command line was read (a program calling the
     CLI), its level is set on the loaded library."""

@@ -11,6 +11,7 @@ from .._io import PLOT_FORMATS, check_outputs, to_json
 from ..detect.options import DEFAULT_METHOD, METHODS
 from ..errors import ParameterError, SkyfixError
 from ..formats.images import imread_whole
+from .main import note
 
 
 
@@ -118,4 +119,4 @@ def detect(image, mask, method, output, plot, overwrite):
     if plot is not None:
         plot_skyline(plot, img, sky)
     n = int(sum(1 for r in sky.rows if r == r))
-    click.echo(f"{Path(image).name}: skyline in {n} of {sky.width} columns ({method})", err=True)
+    note(f"{Path(image).name}: skyline in {n} of {sky.width} columns ({method})")

@@ -12,6 +12,7 @@ import click
 
 from ..errors import ParameterError
 from ..progress import stage
+from .main import note
 from .options import camera_height, check_point_options, dem_sigma, detector_option, point_xy
 
 
@@ -124,7 +125,7 @@ def _check_db_dem(db, dem, db_path, dem_path, force) -> list[str]:
     if not force:
         raise ParameterError(msg + ": give that DEM, rebuild the database from this one, or pass "
                                    "--force to refine on it anyway")
-    click.echo(f"warning: {msg}; going on (--force)", err=True)
+    note(f"warning: {msg}; going on (--force)")
     return [msg + " (--force)"]
 
 
@@ -139,7 +140,7 @@ def _check_camera_height(db, db_path, cam_h) -> list[str]:
     msg = (f"the acquisition's camera is {float(cam_h):g} m above the ground, the database {db_path} "
            f"was built for {built:g} m: the search compares skylines seen from another height "
            "(refinement uses the acquisition's; the position sigma is widened by the difference)")
-    click.echo("warning: " + msg, err=True)
+    note("warning: " + msg)
     return [msg]
 
 
@@ -357,8 +358,8 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     if plot is not None:
         _plot(plot, fix, mres, db, dem, prof)
     if out is not None:
-        click.echo(f"fix ({fix.x:.1f}, {fix.y:.1f}) heading {fix.heading_deg:.1f} deg from true "
-                   f"north, confidence {fix.confidence:.2f} -> {out}", err=True)
+        note(f"fix ({fix.x:.1f}, {fix.y:.1f}) heading {fix.heading_deg:.1f} deg from true "
+             f"north, confidence {fix.confidence:.2f} -> {out}")
 
 
 @click.command("heading")
@@ -431,17 +432,17 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     h = camera_height_m if camera_height_m is not None else (cam_h if cam_h is not None else 1.5)
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     if prior_north == "true" and not math.isfinite(conv) and window_deg < 180:
-        click.echo(f"warning: {dem_path} has no CRS that says where true north is: the heading "
-                   "prior is taken from grid north", err=True)
+        note(f"warning: {dem_path} has no CRS that says where true north is: the heading "
+             "prior is taken from grid north")
     grid_prior = (grid_heading_from_true(heading_prior_deg, conv) if prior_north == "true"
                   else heading_prior_deg)
     hf = estimate_heading(prof, dem, x, y, grid_prior, window_deg, camera_height_m=h,
                           prior_pitch_deg=pp, prior_roll_deg=pr, frames=frames,
                           dem_sigma_m=dem_sigma_m, position_sigma_m=position_sigma_m)
     if window_deg < 180 and at_window_edge(hf.grid_heading_deg, grid_prior, window_deg):
-        click.echo(f"warning: the heading {hf.heading_deg:.1f} deg is on the edge of the window "
-                   f"{heading_prior_deg:g} +- {window_deg:g} deg: the best match lies outside it "
-                   "(confidence capped); check the prior or widen --window-deg", err=True)
+        note(f"warning: the heading {hf.heading_deg:.1f} deg is on the edge of the window "
+             f"{heading_prior_deg:g} +- {window_deg:g} deg: the best match lies outside it "
+             "(confidence capped); check the prior or widen --window-deg")
     from .provenance import provenance
 
     d = hf.to_dict()

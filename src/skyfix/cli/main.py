@@ -109,7 +109,8 @@ class UserError(click.ClickException):
 @click.version_option(__version__, "--version", prog_name="skyfix")
 @click.option("-v", "--verbose", count=True,
               help="More log output: -v skyfix's details, -vv its debug, -vvv everyone's debug.")
-@click.option("-q", "--quiet", is_flag=True, help="Only errors (no stage lines, no warnings).")
+@click.option("-q", "--quiet", is_flag=True,
+              help="Only errors on stderr (no stage lines, warnings, progress bars or summaries).")
 def cli(verbose: int, quiet: bool):
     """skyfix: where a rover is and which way it faces, from the skyline."""
     configure_logging(verbose, quiet)
@@ -140,6 +141,12 @@ def configure_logging(verbose: int, quiet: bool) -> None:
     stages.addHandler(plain)
     if quiet:
         quiet_opencv()
+
+
+def note(message: str) -> None:
+    """A line for the user on stderr, a summary or a warning: none with -q (errors only)."""
+    if logging.getLogger("skyfix").isEnabledFor(logging.WARNING):
+        click.echo(message, err=True)
 
 
 def quiet_opencv() -> None:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from .main import note
 from .options import detector_option
 
 
@@ -38,8 +39,8 @@ def profile(acq_dir, method, azimuth_bins, detector, no_refine, output, plot, ov
     if output is not None:
         write_profile_json(output, prof)
         m = prof.meta
-        click.echo(f"{output}: {m.get('coverage_deg', 0):.0f} deg observed, method {m.get('method')}, "
-                   f"{m.get('frames_used', 1)} frame(s) used, {m.get('frames_dropped', 0)} dropped", err=True)
+        note(f"{output}: {m.get('coverage_deg', 0):.0f} deg observed, method {m.get('method')}, "
+             f"{m.get('frames_used', 1)} frame(s) used, {m.get('frames_dropped', 0)} dropped")
     else:
         click.echo(to_json(prof.to_dict()))
     if plot is not None:

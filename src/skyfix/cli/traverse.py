@@ -8,6 +8,7 @@ import logging
 import click
 
 from ..errors import ParameterError
+from .main import note
 from .options import dem_sigma, detector_option, traverse_path_options
 
 log = logging.getLogger("skyfix.stage")  # one line per stop at the default verbosity
@@ -117,10 +118,10 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
 
         plot_track(Path(out) / "track.png", rows, trav, dem, convergence)
     asked = sum(r["operator_request"] is not None for r in rows)
-    click.echo(f"{len(rows)} stops: {sum(r['update'] == 'heading' for r in rows)} heading and "
-               f"{sum(r['update'] == 'position' for r in rows)} position updates, "
-               f"{sum(r['update'] == 'rejected' for r in rows)} rejected, {asked} operator "
-               f"request{'s' * (asked != 1)} -> {out}", err=True)
+    note(f"{len(rows)} stops: {sum(r['update'] == 'heading' for r in rows)} heading and "
+         f"{sum(r['update'] == 'position' for r in rows)} position updates, "
+         f"{sum(r['update'] == 'rejected' for r in rows)} rejected, {asked} operator "
+         f"request{'s' * (asked != 1)} -> {out}")
 
 
 def write_track(out, rows, crs_wkt) -> None:
@@ -213,4 +214,4 @@ def simulate_traverse(dem, out, length_m, stop_spacing_m, seed, distance_drift,
                          with_start=not no_start, leg_length_m=leg_length_m, on_stop=progress,
                          world=world, map_errors=MapErrors() if map_errors else None,
                          overwrite=overwrite)
-    click.echo(f"traverse -> {path}", err=True)
+    note(f"traverse -> {path}")
