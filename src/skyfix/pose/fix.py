@@ -90,7 +90,9 @@ UNKNOWN_HEADING_SIGMA_DEG = 360.0 / math.sqrt(12.0)
 
 
 def crs_and_lonlat(crs_wkt: str, x: float, y: float):
-    """(short CRS name, lon [deg], lat [deg]) of (x, y) [m] in ``crs_wkt``; NaNs without a CRS.
+    """(CRS, lon [deg], lat [deg]) of (x, y) [m] in ``crs_wkt``; NaNs without a CRS. The CRS is
+    its authority code (``EPSG:32611``) where it has one, else its WKT: a name alone (a Mars
+    DEM's local transverse Mercator) is nothing another tool, or ``--geojson``, can read back.
     On Earth lon/lat are WGS 84 (what GeoJSON means); on another body, its own geodetic CRS."""
     if not crs_wkt:
         return "", float("nan"), float("nan")
@@ -100,7 +102,7 @@ def crs_and_lonlat(crs_wkt: str, x: float, y: float):
 
     crs = CRS.from_user_input(crs_wkt)
     auth = crs.to_authority()
-    name = f"{auth[0]}:{auth[1]}" if auth else crs.name
+    name = f"{auth[0]}:{auth[1]}" if auth else crs.to_wkt()
     try:
         geo = "EPSG:4326" if planet_from_crs(crs) in (EARTH, None) else crs.geodetic_crs
         t = Transformer.from_crs(crs, geo, always_xy=True)
