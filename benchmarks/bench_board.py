@@ -18,8 +18,9 @@ which needs the ground install this script runs in. Measured in the ground insta
 commands carry what its extras drag in (numba loads SciPy's BLAS where SciPy is installed).
 
 The requirement's database is the README's 7 x 7 km at 5 m over the Sierra DEM:
-``skyfix build-db ../shared/data/dem/sierra_nevada_30m.tif -o DB --bounds -2020450 238257
--2013450 245257 --spacing-m 5``.
+``skyfix build-db ../shared/data/dem/sierra_nevada_30m.tif -o DB --bounds 297800 4143100
+304800 4150100 --spacing-m 5`` (the DEM's work CRS, UTM 11N; a store built before 2026-11-28,
+in its USA Albers, is refused: rebuild it).
 """
 
 from __future__ import annotations

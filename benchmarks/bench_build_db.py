@@ -23,8 +23,8 @@ import time
 from pathlib import Path
 
 DEM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dem" / "sierra_nevada_30m.tif"
-#: the 7 x 7 km reference search area (DEM CRS, ESRI:102003) and its centre
-AREA_7KM = (-2020450.0, 238257.0, -2013450.0, 245257.0)
+#: the 7 x 7 km reference search area (the DEM's work CRS, UTM 11N) and its centre
+AREA_7KM = (297800.0, 4143100.0, 304800.0, 4150100.0)
 
 
 def main():

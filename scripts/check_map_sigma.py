@@ -2,7 +2,7 @@
 move a least-squares fit as much as :func:`skyfix.pose.map_error.fit_map_covariance` says?
 
     python scripts/check_map_sigma.py --dem ../shared/data/dem/sierra_nevada_30m.tif \\
-        --x -2015996.7 --y 240154.7 --yaw 309.0 [--draws 30] [--dem-sigma-m 2]
+        --x 302588.8 --y 4145264.5 --yaw 296.4 [--draws 30] [--dem-sigma-m 2]
 
 Each draw adds a height error with the model's covariance (``sigma^2 exp(-r / 150 m)``, white
 noise filtered by that covariance's 2-D spectrum, on a grid padded against the periodic wrap)

@@ -8,7 +8,7 @@ DB=${1:-../skyfix-data/sierra_7km_5m.zarr}
 OUT=docs/example-report
 CASES=${CASES:-10}
 if [ ! -f "$DB/zarr.json" ] || ! skyfix info "$DB" | grep -q "(complete)"; then
-  skyfix build-db "$DEM" --out "$DB" --bounds -2020450 238257 -2013450 245257 --spacing-m 5
+  skyfix build-db "$DEM" --out "$DB" --bounds 297800 4143100 304800 4150100 --spacing-m 5
 fi
 skyfix evaluate --dem "$DEM" --scenario 1 --db "$DB" --sets REF,LREL --cases "$CASES" --seed 1 --out "$OUT/scenario1" --overwrite
 skyfix evaluate --dem "$DEM" --scenario 2 --sets REF,LREL,OCCL --cases "$CASES" --seed 2 --out "$OUT/scenario2" --overwrite

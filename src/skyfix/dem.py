@@ -18,15 +18,11 @@ import numpy as np
 
 from .errors import DemError, OutsideDemError, ParameterError
 from .planets import EARTH, planet_from_crs
-from .workcrs import (MAX_SCALE_ERROR, direction_error_deg, geographic_bounds, local_tm_crs,
-                      scale_error, source_footprint, trim_to_footprint)
+from .workcrs import (MAX_SCALE_ERROR, direction_error_deg, earth_work_crs, geographic_bounds,
+                      local_tm_crs, scale_error, source_footprint, trim_to_footprint)
 
 log = logging.getLogger(__name__)
 
-#: [fraction] above this scale error a projected Earth DEM read without ``--crs`` is reprojected to
-#: its UTM zone; between :data:`~skyfix.workcrs.MAX_SCALE_ERROR` (0.1 %) and this it is kept with a
-#: warning. 1 % of a 5 km sight line lowers a ridge 1000 m above the camera by 0.1 deg.
-MAX_KEPT_SCALE_ERROR = 0.01
 #: [fraction] the largest scale error of the work CRS skyfix picks for a DEM: beyond it the DEM
 #: spans too much of its body for any one metric CRS (a UTM zone keeps 5 % within ~2000 km of its
 #: central meridian)
@@ -169,17 +165,20 @@ class Dem:
     # --- constructors ----------------------------------------------------------------------------
     @classmethod
     def from_array(cls, z, spacing_m: float, x0: float = 0.0, y0: float | None = None,
-                   crs: str = "EPSG:32611") -> "Dem":
+                   crs: str | None = None) -> "Dem":
         """A DEM from an array (row 0 north) with square cells; handy for tests and demos.
 
         ``y0`` defaults to ``(ny - 1) * spacing_m`` so that the south-west pixel centre is at (x0, 0).
+        ``crs`` defaults to a transverse Mercator on WGS 84 whose origin is (0, 0) (at 0 N,
+        117 W): true to scale near there, as a work CRS must be (a UTM zone's (0, 0) lies 500 km
+        off its meridian, 0.27 % stretched, and would be reprojected on reading).
         """
         from pyproj import CRS
 
         z = np.asarray(z, np.float32)
         if y0 is None:
             y0 = (z.shape[0] - 1) * spacing_m
-        c = CRS.from_user_input(crs)
+        c = CRS.from_user_input(crs) if crs is not None else local_tm_crs("EPSG:4326", -117.0, 0.0)
         return cls(z, x0, y0, spacing_m, spacing_m, c.to_wkt(), _crs_name(c), body=planet_from_crs(c))
 
 
@@ -203,14 +202,6 @@ def _crs_name(crs) -> str:
     return f"{auth[0]}:{auth[1]}" if auth else (crs.name or "")
 
 
-def utm_crs_for(lon: float, lat: float):
-    """The WGS 84 UTM zone CRS containing (lon, lat) [deg]."""
-    from pyproj import CRS
-
-    zone = int((lon + 180.0) // 6.0) % 60 + 1
-    return CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
-
-
 def file_checksum(path, chunk: int = 1 << 20) -> str:
     """SHA-256 of a file's bytes (hex)."""
     h = hashlib.sha256()
@@ -226,10 +217,10 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
 
     path : DEM file
     crs : target CRS (``EPSG:…``, WKT, PROJ); default (:mod:`skyfix.workcrs`): the DEM's own when
-        projected in metres, on a body other than Earth only if its scale error over the DEM is
-        within 0.1 %, on Earth only if it is within 1 % (:data:`MAX_KEPT_SCALE_ERROR`; over 0.1 %
-        with a warning); else a transverse Mercator on the DEM's body centred on it (on Earth: the
-        UTM zone of the DEM's centre, as for a geographic DEM, with a warning). A given ``crs``
+        projected in metres with a scale error within 0.1 % over the DEM; else a transverse
+        Mercator on the DEM's body centred on it (on Earth: the UTM zone of the DEM's centre where
+        that is within 0.1 % over it, :func:`~skyfix.workcrs.earth_work_crs`; a projected Earth
+        DEM so read is said with a warning, its coordinates being the user's). A given ``crs``
         is used as is, with a warning if it stretches distances by more than 0.1 % over the DEM.
         The body (:attr:`Dem.body`) comes from the CRS's datum. Heights are metres: a band scale
         and offset are applied; a band whose unit says otherwise (feet, km) is refused
@@ -300,7 +291,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         elif src_crs.is_geographic:
             west, south, east, north = src.bounds
             if body is EARTH:
-                dst_crs = utm_crs_for((west + east) / 2, (south + north) / 2)
+                dst_crs = earth_work_crs(src_crs, src.bounds)
             else:
                 dst_crs = local_tm_crs(src_crs, (west + east) / 2, (south + north) / 2)
         else:
@@ -313,27 +304,21 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                     log.info("%s: %s stretches distances by up to %.2f %% over the DEM: "
                              "reprojected to %s", path.name, _crs_name(src_crs) or src_crs.name,
                              100 * err, dst_crs.name)
-                elif err > MAX_KEPT_SCALE_ERROR:
-                    # Web Mercator at 46 deg N stretches distances by 44 %: keeping it would give
-                    # horizons that look plausible and are wrong. Its UTM zone is what a geographic
-                    # DEM of the same place is read into.
-                    dst_crs = utm_crs_for((w + e) / 2, (s + n) / 2)
-                    log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
-                                "%.0f %%): reprojected to %s, in which coordinates are now given "
-                                "(for another metric CRS, reproject the file: gdalwarp -t_srs)",
-                                path.name, _crs_name(src_crs) or src_crs.name, 100 * err,
-                                100 * MAX_KEPT_SCALE_ERROR, _crs_name(dst_crs))
                 else:
+                    # Not kept: a 1 % stretch bends horizons, and a CRS that is not conformal
+                    # turns directions no meridian convergence undoes (the Sierra's USA Albers put
+                    # a full turn's true-north heading 0.3-0.4 deg off). Coordinates are the
+                    # user's, so this is said every time.
+                    dst_crs = earth_work_crs(src_crs, src.bounds)
                     turn = direction_error_deg(src_crs, src.bounds)
-                    utm = _crs_name(utm_crs_for((w + e) / 2, (s + n) / 2))
-                    # only horizon and simulate take --crs: this advice works for every command
                     log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
-                                "%.1f %%)%s: horizons are distorted by as much; to avoid it, "
-                                "reproject it to a conformal CRS, its UTM zone: gdalwarp -t_srs "
-                                "%s %s OUT.tif", path.name, _crs_name(src_crs) or src_crs.name,
-                                100 * err, 100 * MAX_SCALE_ERROR,
-                                f" and turns directions by up to {turn:.2f} deg (a narrow view's "
-                                "heading by as much)" if turn >= 0.01 else "", utm, path.name)
+                                "%.1f %%)%s: reprojected to %s, in which coordinates are given; to "
+                                "skip this, reproject the file once: gdalwarp -t_srs %s %s OUT.tif",
+                                path.name, _crs_name(src_crs) or src_crs.name, 100 * err,
+                                100 * MAX_SCALE_ERROR,
+                                f" and turns directions by up to {turn:.2f} deg" if turn >= 0.01
+                                else "", _crs_name(dst_crs) or dst_crs.name,
+                                _crs_name(dst_crs) or "'" + dst_crs.to_proj4() + "'", path.name)
         if not dst_crs.is_projected or abs(dst_crs.axis_info[0].unit_conversion_factor - 1.0) > 1e-9:
             raise DemError(f"target CRS {_crs_name(dst_crs) or dst_crs.name} is not projected in metres: "
                            "pass --crs with a metric projected CRS (e.g. a UTM zone)")

@@ -4,8 +4,10 @@ Inside skyfix every azimuth is from grid north, the +y axis of the work CRS. A h
 output is from true north, with the grid heading and the meridian convergence beside it:
 ``heading_deg = grid_heading_deg + meridian_convergence_deg``. The convergence is read off the CRS
 itself: the grid azimuth of a short step due north along the meridian, on the CRS's own body (so
-a Mars CRS gives Mars's meridians). Grid north is 14 deg from true north in the Sierra demo's
-Albers projection, 1.6 deg on the glacier DEM's UTM zone: beyond the 1 deg a heading must meet.
+a Mars CRS gives Mars's meridians). Grid north is 1.3 deg from true north over the Sierra DEM
+(read into UTM 11N; 14 deg in its own Albers), 1.6 deg on the glacier DEM's UTM zone: beyond the
+1 deg a heading must meet. The sum is exact only in a conformal CRS, which is why
+:mod:`skyfix.workcrs` reads a DEM in any other (beyond 0.1 % of stretch) into one.
 """
 
 from __future__ import annotations

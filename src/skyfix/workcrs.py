@@ -2,15 +2,15 @@
 which distances are true to within 0.1 % over the work area; and, for a DEM reprojected into it,
 the crop to where the source raster lies (:func:`source_footprint`, :func:`trim_to_footprint`).
 
-A horizon is made of distances and heights: a projection that stretches distances tilts every
-line of sight (an equirectangular Mars map with its standard parallel at the equator stretches
-east-west distances by 5 % at Jezero's 18.4 deg N). Where the DEM's own CRS is geographic, or
-projected with more distortion than that on another body than Earth, the DEM is reprojected to a
-transverse Mercator on its body, centred on the DEM (conformal, scale 1 on its central meridian:
-well under 0.1 % within ~90 km of it). On Earth a geographic DEM goes to its UTM zone, as it always
-has; a projected Earth DEM that stretches distances by 0.1-1 % is kept (its coordinates are the
-user's) with a warning that gives the figure and how to reproject it (``gdalwarp``); beyond 1 % (Web Mercator:
-44 % at 46 deg N) it goes to its UTM zone too, with a warning (``skyfix.dem.MAX_KEPT_SCALE_ERROR``).
+A horizon is made of distances, heights and directions: a projection that stretches distances
+tilts every line of sight (an equirectangular Mars map with its standard parallel at the equator
+stretches east-west distances by 5 % at Jezero's 18.4 deg N), and one that is not conformal also
+turns directions, which no meridian convergence undoes (the Sierra DEM's USA Albers: 0.98 % and
+up to 0.56 deg; a full turn's heading came out 0.3-0.4 deg off true north in it). Where the DEM's
+own CRS is geographic or projected with more than 0.1 % scale error, the DEM is reprojected to a
+transverse Mercator on its body: on Earth its UTM zone where that is within 0.1 % over the DEM
+(:func:`earth_work_crs`), else one centred on the DEM (scale 1 on its central meridian: well under
+0.1 % within ~90 km of it).
 """
 
 from __future__ import annotations
@@ -37,6 +37,33 @@ def local_tm_crs(crs, lon0: float, lat0: float):
                                         scale_factor_natural_origin=1.0)
     name = f"skyfix local transverse Mercator at {lat0:.4f}, {lon0:.4f} on {geo.name}"
     return ProjectedCRS(conversion=conv, geodetic_crs=geo, name=name)
+
+
+def utm_crs_for(lon: float, lat: float):
+    """The WGS 84 UTM zone CRS containing (lon, lat) [deg]."""
+    from pyproj import CRS
+
+    zone = int((lon + 180.0) // 6.0) % 60 + 1
+    return CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
+
+
+def earth_work_crs(src_crs, src_bounds):
+    """The work CRS of an Earth DEM in ``src_crs`` over ``src_bounds`` (xmin, ymin, xmax, ymax in
+    that CRS): the UTM zone of its centre where that stretches distances by at most 0.1 % over
+    it (a coordinate system users know), else a transverse Mercator centred on it (a DEM across
+    a zone's edge)."""
+    from pyproj import CRS, Transformer
+
+    src = CRS.from_user_input(src_crs)
+    w, s, e, n = (src_bounds if src.is_geographic else geographic_bounds(src, src_bounds))
+    utm = utm_crs_for((w + e) / 2, (s + n) / 2)
+    try:
+        b = Transformer.from_crs(src, utm, always_xy=True).transform_bounds(*src_bounds)
+    except Exception:  # noqa: BLE001 - pyproj raises several types for bounds it cannot carry
+        b = None
+    if b is not None and scale_error(utm, b) <= MAX_SCALE_ERROR:
+        return utm
+    return local_tm_crs(src, (w + e) / 2, (s + n) / 2)
 
 
 def _worst_factor(crs, bounds, n: int, of) -> float:
