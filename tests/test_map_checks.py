@@ -121,6 +121,30 @@ def test_a_dem_other_than_the_databases_is_refused_before_detection(tmp_path, fi
     assert "Traceback" not in r.output
 
 
+def test_a_database_built_in_another_work_crs_is_refused_even_forced(tmp_path, monkeypatch,
+                                                                     detection_forbidden):
+    """The same DEM file, read into another work CRS than the database's: skyfix before
+    2026-11-28 kept a DEM projected with 0.1-1 % scale error (here UTM 11N 500 km off its
+    meridian, 0.27 %) in its own CRS; it is now read into its UTM zone (10N), and the database's
+    positions would be taken for coordinates of that other map. Refused, --force or not."""
+    import skyfix.dem
+
+    z = _dem().z
+    dem_path = write_dem(tmp_path / "utm_far.tif", Dem.from_array(z, CELL, crs="EPSG:32611"))
+    db_path = tmp_path / "old.zarr"
+    with monkeypatch.context() as m:  # the rule of before: a 0.27 % stretch kept, as the file's
+        m.setattr(skyfix.dem, "scale_error", lambda *a, **k: 0.0)
+        build_database(dem_path, db_path, (300, 300, 500, 500), 10, workers=0, progress=False,
+                       azimuth_bins=180, block=8)
+    assert open_database(db_path).attrs["crs_name"] == "EPSG:32611"
+    acq = _acquisition(tmp_path)
+    for extra in ((), ("--force",)):
+        r = _run("locate", acq, "--db", db_path, "--dem", dem_path, *extra)
+        assert r.exit_code == 2, r.output
+        assert "was built in EPSG:32611" in r.output and "read in EPSG:32610" in r.output
+        assert "Rebuild the database" in r.output and "Traceback" not in r.output
+
+
 def test_a_forced_other_dem_is_said_in_the_fix(tmp_path, files):
     dem_path, other, db_path = files
     prof = tmp_path / "p.json"

@@ -220,9 +220,10 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
         if db_path is None:
             raise ParameterError("scenario 1 searches a skyline database: give --db DB "
                                  "(build one with `skyfix build-db`)")
-        from .database import open_database
+        from .database import check_dem_crs, open_database
 
         db = open_database(db_path)
+        check_dem_crs(db, dem, db_path, dem_path)
         if abs(db.camera_height_m - cfg.camera_height_m) > 1e-6:
             raise ParameterError(f"the database was built for a camera {db.camera_height_m} m high, "
                                  f"the cases use {cfg.camera_height_m} m")

@@ -116,9 +116,12 @@ def _read_profile(acq, profile_path, frames=None, detector=None, azimuth_bins=36
 def _check_db_dem(db, dem, db_path, dem_path, force) -> list[str]:
     """Refuse a DEM other than the database's (its checksum is in the database), unless forced;
     returns the notes the fix then carries."""
-    if db is None or dem is None or not getattr(db, "dem_sha256", ""):
+    if db is None or dem is None:
         return []
-    if dem.checksum == db.dem_sha256:
+    from ..database import check_dem_crs
+
+    check_dem_crs(db, dem, db_path, dem_path)  # not forced: another map's coordinates
+    if not getattr(db, "dem_sha256", "") or dem.checksum == db.dem_sha256:
         return []
     msg = (f"--dem {dem_path} (sha256 {dem.checksum[:12]}...) is not the DEM the database {db_path} "
            f"was built from (sha256 {db.dem_sha256[:12]}..., {(db.attrs.get('dem') or {}).get('source', 'source not recorded')})")

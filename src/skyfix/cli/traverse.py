@@ -83,6 +83,10 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
         from ..stack import load_dems
 
         dem = load_dems(list(dem_paths))
+        if db is not None:
+            from ..database import check_dem_crs
+
+            check_dem_crs(db, dem, db_path, " ".join(map(str, dem_paths)))
         check_start(trav, dem)
         cfg = TraverseConfig(min_confidence=min_confidence, max_rejections=max_rejections,
                              leg_length_m=leg_length_m)

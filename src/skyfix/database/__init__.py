@@ -36,7 +36,7 @@ from .build import (BuildResult, build_database, build_params, check_build_size,
                     estimate_build_bytes)
 from .tasks import RENDERERS, render_block
 from .executors import InProcessExecutor, check_executor_options, default_workers, make_executor
-from .integrity import done_blocks
+from .integrity import check_dem_crs, done_blocks
 from .layout import (BLOCK, DATA_ARRAYS, FORMAT, FORMAT_VERSION, MARKER_DIR, MAX_BUILD_BYTES,
                      MAX_POSITIONS, META_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG, Grid, dequantise,
                      marker_name, quantise, read_marker)
@@ -46,7 +46,7 @@ from .verify import VerifyReport, describe, verify_database
 __all__ = ["BLOCK", "DATA_ARRAYS", "FORMAT", "FORMAT_VERSION", "MARKER_DIR", "MAX_BUILD_BYTES",
            "MAX_POSITIONS", "META_DIR", "MISSING", "SCALE_DEG", "SKIP_TOL_DEG", "Block",
            "BuildResult", "Grid", "InProcessExecutor", "SkylineDatabase", "VerifyReport",
-           "build_database", "build_params", "check_build_size", "check_executor_options",
+           "build_database", "build_params", "check_build_size", "check_dem_crs", "check_executor_options",
            "default_workers", "describe", "dequantise", "dir_size", "done_blocks",
            "estimate_build_bytes", "make_executor", "marker_name", "open_database", "quantise",
            "read_marker", "render_block", "RENDERERS", "verify_database"]

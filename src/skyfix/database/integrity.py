@@ -262,3 +262,24 @@ def indexed_blocks(path, group, grid: Grid, bins: int) -> set[tuple[int, int]]:
     have = chunk_keys(Path(path) / COARSE)
     key = group[COARSE].metadata.encode_chunk_key
     return {(br, bc) for br, bc in grid.blocks() if key((br, bc, 0)) in have}
+
+
+def check_dem_crs(db, dem, db_path, dem_path) -> None:
+    """Refuse a DEM read into another work CRS than the one the database ``db`` was built in:
+    its positions would be read as coordinates of another map. The DEM file can be the very one
+    (same checksum) and still differ here: skyfix before 2026-11-28 kept a DEM projected with
+    0.1-1 % scale error (the Sierra's USA Albers) in its own CRS, and now reads it into its UTM
+    zone. A :class:`~skyfix.errors.DatabaseError` naming both and what to do."""
+    from pyproj import CRS
+
+    built = getattr(db, "crs_wkt", "") or ""
+    if not built or dem is None or not dem.crs_wkt:
+        return
+    if CRS.from_wkt(built) == CRS.from_wkt(dem.crs_wkt):
+        return
+    name = db.attrs.get("crs_name") or CRS.from_wkt(built).name
+    raise DatabaseError(
+        f"the database {db_path} was built in {name}, but --dem {dem_path} is read in "
+        f"{dem.crs_name or CRS.from_wkt(dem.crs_wkt).name}: its positions would be taken for "
+        "another map's. Rebuild the database from this DEM with this skyfix (build-db; bounds in "
+        "the DEM's work CRS, which `skyfix info DEM` prints)")
