@@ -642,6 +642,9 @@ def test_skyline_layouts_round_trip_through_zarr_and_the_direct_reader(tmp_path,
                 got = read((br, bc, 0))
                 want = np.asarray(a[br * block:(br + 1) * block, bc * block:(bc + 1) * block])
                 np.testing.assert_array_equal(got[:want.shape[0], :want.shape[1]], want)
+                c = read((br, bc, 0), True)  # decoded into C order: the checksums' order
+                assert c.flags.c_contiguous
+                np.testing.assert_array_equal(c[:want.shape[0], :want.shape[1]], want)
     names = [c["name"] for c in json.loads((tmp_path / "now.zarr" / "zarr.json").read_text())["codecs"]]
     assert (names[0] == "transpose") == (block > 1)
 

@@ -197,6 +197,37 @@ def test_spoiled_chunk_names_the_block_in_search_and_locate(clean_db, tmp_path, 
     assert [b for b, _ in rep.corrupt] == [(1, 1)]
 
 
+def test_swapped_chunks_are_named_by_their_checksums_in_search_and_locate(clean_db, tmp_path):
+    """Two blocks' elevation chunk files swapped decode without a fault (zstd checks only that a
+    file is whole): the search checks each block it decodes against its marker's checksums and
+    names the block, where it gave a confident fix (verify alone caught it)."""
+    good = open_database(clean_db)
+    q = good.profiles_at(*good.xy_of(np.array([10]), np.array([12])))[0]  # block (1, 1)
+    best = match_database(good, q, MatchConfig(min_observed=10)).candidates[0]
+    assert (best.row, best.col) == (10, 12)  # the undamaged store: the known answer
+    db_path = _copy(clean_db, tmp_path)
+    a, b = (db_path / "elevation" / "c" / "1" / "1" / "0"), (db_path / "elevation" / "c" / "0" / "1" / "0")
+    da, db_ = a.read_bytes(), b.read_bytes()
+    a.write_bytes(db_)
+    b.write_bytes(da)
+    db = open_database(db_path)  # both files there and whole: only their checksums tell
+    says = (r"block \((1, 1|0, 1)\) elevation differs from the checksum its marker recorded .*swapped"
+            r".*skyfix verify.*r000[01]_c0001/zarr.json\) and rerun the build-db command")
+    for prefetch, index in ((True, True), (False, True), (True, False), (False, False)):
+        with pytest.raises(DatabaseError, match=says):
+            match_database(db, q, MatchConfig(min_observed=10, prefetch=prefetch, coarse_index=index))
+    with pytest.raises(DatabaseError, match=r"block \(1, 1\) elevation differs from the checksum"):
+        db.profiles_at(*db.xy_of(np.array([9]), np.array([9])))
+    res = _cli("locate", "--profile", _profile_file(good, tmp_path), "--db", db_path)
+    assert res.exit_code == 2 and re.search(says, res.output), res.output
+    rep = verify_database(db_path, samples=0)
+    assert sorted(b for b, _ in rep.corrupt) == [(0, 1), (1, 1)]
+    # a marker that cannot be read is named as such when its block is decoded
+    (db_path / MARKER_DIR / marker_name(1, 1)).write_text("{oops")
+    with pytest.raises(DatabaseError, match=r"block \(1, 1\) marker unreadable .*skyfix verify"):
+        open_database(db_path).read_block(1, 1)
+
+
 def test_spoiled_coarse_index_chunk_is_named_and_redone(dem_path, clean_db, tmp_path):
     """The coarse index is derived data: a spoiled chunk of it is named with what to delete, and
     the build command makes it again from the stored skylines (nothing re-rendered)."""

@@ -22,8 +22,11 @@ Blocks
     chunk of every array per block. A block is one build task: it renders its positions, writes
     its chunks, then (atomically, after the data) a marker ``_skyfix/blocks/rRRRR_cCCCC/zarr.json``
     holding the SHA-256 of the block's decoded arrays. A block without a marker is not built, so a
-    build killed at any moment resumes by redoing exactly the blocks without markers, and
-    :func:`verify_database` can tell an intact block from a corrupted one.
+    build killed at any moment resumes by redoing exactly the blocks without markers,
+    :func:`verify_database` can tell an intact block from a corrupted one, and a reader checks
+    each block it decodes against its marker (a chunk file swapped with another block's decodes
+    without a fault); the coarse index, derived data without checksums, is checked by
+    :func:`verify_database` only.
 
 Files: :mod:`.layout` (format constants, the grid, quantisation), :mod:`.executors` (where blocks
 run), :mod:`.integrity` (the state of a store on disk), :mod:`.chunks` (the skyline arrays' codecs
