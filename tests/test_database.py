@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -666,6 +667,33 @@ def test_the_transposed_layout_is_smaller_on_real_skylines(clean_db, tmp_path):
         size[name] = sum(f.stat().st_size for f in (tmp_path / f"{name}.zarr" / "c").rglob("*")
                          if f.is_file())
     assert size["now"] < 0.95 * size["earlier"], size
+
+
+@pytest.mark.parametrize("edit", [
+    lambda c: [c[0], c[1], c[2], c[4], c[3]],  # compressors reordered (zstd before shuffle)
+    lambda c: [c[1], c[0], *c[2:]],  # filters reordered (delta before the transpose)
+    lambda c: [{**c[0], "configuration": {"order": [0, 1, 2]}}, *c[1:]],
+    lambda c: [c[0], *c[2:]],  # the delta gone
+    lambda c: [*c[:3], {**c[3], "configuration": {"elementsize": 4}}, c[4]],
+    lambda c: [*c[:3], c[3], c[3], c[4]],  # a codec twice
+])
+def test_an_edited_codec_chain_is_decoded_by_zarr_as_its_metadata_says(clean_db, tmp_path, edit):
+    """The direct reader takes only its own chain, name by name and setting by setting: a store
+    whose zarr.json lists the codecs otherwise is read through zarr, as its metadata says, and
+    the search and verify then read the same values (which the block checksums refuse)."""
+    db_path = tmp_path / "db.zarr"
+    shutil.copytree(clean_db, db_path)
+    f = db_path / "elevation" / "zarr.json"
+    meta = json.loads(f.read_text())
+    meta["codecs"] = edit(meta["codecs"])
+    f.write_text(json.dumps(meta))
+    db = open_database(db_path)
+    assert chunk_reader(zarr.open_group(str(db_path), mode="r")["elevation"]) is None
+    rep = verify_database(db_path, samples=0)
+    assert len(rep.corrupt) == db.n_blocks  # every block decodes wrong, or not at all
+    with pytest.raises(DatabaseError, match=r"block \(0, 0\) (elevation differs from the checksum"
+                                            r"|data unreadable)"):
+        db.read_raw("elevation", 0, 0)
 
 
 def test_other_chunk_layouts_are_read_through_zarr(tmp_path):

@@ -10,7 +10,10 @@ and the delta together: 1.9 s of the search's reader thread for the same data
 Only the layouts skyfix writes take this path (:func:`skyline_codecs`, for ``elevation`` and the
 coarse index: optionally Transpose to (azimuth, y, x), then Delta(i2), little-endian bytes,
 Shuffle(2), zstd; regular chunks, default chunk keys, a local folder). Any other array, and a
-big-endian machine, is read through zarr.
+big-endian machine, is read through zarr: a chain edited in a store's zarr.json (reordered, a
+codec dropped, added or set otherwise) is decoded as its metadata says, the same for the search
+and ``skyfix verify``, rather than refused here; what it decodes to is then judged by the blocks'
+checksums like any other damage, and a store another tool wrote with other codecs still reads.
 """
 
 from __future__ import annotations
