@@ -197,11 +197,26 @@ def test_traverse_writes_only_into_its_own_output_folder(simulated, fused, tmp_p
     assert "--overwrite" in r.output and not (old / "run.json").exists()
 
 
+def _truncated_jpeg(t):
+    """The last stop's panorama as a JPEG cut in half: OpenCV decodes it, the rest grey."""
+    import cv2
+
+    stop = t / "stop_003"
+    acq = json.loads((stop / "acquisition.json").read_text())
+    acq["panorama"]["image"] = "pano.jpg"
+    (stop / "acquisition.json").write_text(json.dumps(acq))
+    cv2.imwrite(str(stop / "pano.jpg"), cv2.imread(str(stop / "pano.png")))
+    data = (stop / "pano.jpg").read_bytes()
+    (stop / "pano.jpg").write_bytes(data[:len(data) // 2])
+
+
 @pytest.mark.parametrize("spoil, says", [
     (lambda t: (t / "stop_002" / "acquisition.json").write_text("{bad"),
      "stop 'stop_002' ({t}/stop_002): {t}/stop_002/acquisition.json is not valid JSON"),
     (lambda t: (t / "stop_001" / "pano.png").unlink(),
      "stop 'stop_001' ({t}/stop_001): image pano.png named in"),
+    (_truncated_jpeg, "stop 'stop_003' ({t}/stop_003): image {t}/stop_003/pano.jpg is damaged or "
+                      "truncated (the JPEG decoder: Premature end of JPEG file)"),
     (lambda t: (t / "traverse.json").write_text(json.dumps(
         {**json.loads((t / "traverse.json").read_text()),
          "start": {"x": 0, "y": 0, "heading_deg": 0, "position_sigma_m": 2, "heading_sigma_deg": 1}})),

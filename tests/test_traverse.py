@@ -314,21 +314,36 @@ def test_an_output_resumes_only_the_run_that_made_it(tmp_path):
 
 
 def test_check_stops_names_a_broken_stop_and_check_start_a_start_off_the_dem(tmp_path):
-    """Checked before the first stop; what the images show is left to the run (an empty image
-    passes here)."""
+    """Checked before the first stop: each image there and decoding whole (a truncated JPEG at
+    the last stop was met only when the run reached it); what the images show is left to the
+    run (a featureless image passes here)."""
+    import cv2
+
     from skyfix.errors import AcquisitionError, OutsideDemError
     from skyfix.traverse.inputs import check_start, check_stops
     from conftest import plane_dem
 
     root = _folder(tmp_path, [GOOD, GOOD])
+    noise = np.random.default_rng(0).integers(0, 256, (64, 256, 3), dtype=np.uint8)
     for k in range(3):
         (root / f"stop_{k:03d}" / "acquisition.json").write_text(json.dumps(
-            {"panorama": {"image": "pano.png"}, "camera_height_m": 1.5}))
-        (root / f"stop_{k:03d}" / "pano.png").write_bytes(b"")
+            {"panorama": {"image": "pano.jpg"}, "camera_height_m": 1.5}))
+        cv2.imwrite(str(root / f"stop_{k:03d}" / "pano.jpg"), noise if k else noise * 0 + 128)
     trav = read_traverse(root)
     assert len(check_stops(trav)) == 3
-    (root / "stop_001" / "pano.png").unlink()
-    with pytest.raises(AcquisitionError, match="stop 'stop_001' .*image pano.png named in"):
+    last = root / "stop_002" / "pano.jpg"
+    whole = last.read_bytes()
+    last.write_bytes(whole[:len(whole) // 2])
+    with pytest.raises(AcquisitionError, match=r"stop 'stop_002' .*pano.jpg is damaged or truncated "
+                                               r"\(the JPEG decoder: Premature end of JPEG file\)"):
+        check_stops(trav)
+    last.write_bytes(b"")
+    with pytest.raises(AcquisitionError, match=r"stop 'stop_002' .*cannot read image .*pano.jpg: not "
+                                               "an image OpenCV can decode"):
+        check_stops(trav)
+    last.write_bytes(whole)
+    (root / "stop_001" / "pano.jpg").unlink()
+    with pytest.raises(AcquisitionError, match="stop 'stop_001' .*image pano.jpg named in"):
         check_stops(trav)
     dem = plane_dem(1000.0, 20.0)
     check_start(trav, dem)  # no start: nothing to check

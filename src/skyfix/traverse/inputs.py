@@ -166,21 +166,37 @@ def read_traverse(root) -> Traverse:
 
 
 def check_stops(trav: Traverse) -> list:
-    """Load every stop's acquisition (its acquisition.json and that each image it names exists)
-    before the first stop is measured: a broken stop is the traverse's input error, to be
-    refused now, not a failed detection found hours into the run (a stop whose images hold no
-    skyline is no input error: the run meets it and asks the operator). Returns the
+    """Load every stop's acquisition (its acquisition.json, and that each image it names exists
+    and decodes) before the first stop is measured: a broken stop is the traverse's input error,
+    to be refused now, not a failed detection found hours into the run (a stop whose images hold
+    no skyline is no input error: the run meets it and asks the operator). Returns the
     :class:`skyfix.formats.Acquisition` per stop."""
     from ..formats import load_acquisition
 
     acqs = []
     for name, folder in zip(trav.stops, trav.folders):
         try:
-            acqs.append(load_acquisition(folder))
+            acq = load_acquisition(folder)
+            for path in acq.files()[1:]:  # after its acquisition.json: the images it names
+                check_image(path)
+            acqs.append(acq)
         except AcquisitionError as e:
             raise AcquisitionError(f"stop '{name}' ({folder}): {str(e).splitlines()[0]}; fix or "
                                    "replace the stop's acquisition, then run again") from None
     return acqs
+
+
+def check_image(path) -> None:
+    """Refuse an image file OpenCV cannot decode, or decodes only in part (a truncated or corrupt
+    JPEG: :func:`skyfix.formats.images.imread_whole`). Decoded at an eighth of its size: a JPEG's
+    whole stream is still read, so its damage still shows, in a third of a full decode's time
+    (22 against 71 ms for 2048 x 2048 pixels); a PNG is inflated whole either way."""
+    import cv2
+
+    from ..formats.images import imread_whole
+
+    if imread_whole(path, cv2.IMREAD_REDUCED_GRAYSCALE_8) is None:
+        raise AcquisitionError(f"cannot read image {path}: not an image OpenCV can decode")
 
 
 def check_start(trav: Traverse, dem) -> None:
