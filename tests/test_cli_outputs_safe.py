@@ -275,7 +275,7 @@ def test_evaluate_writes_its_tables_atomically(tmp_path, monkeypatch):
 
     monkeypatch.setattr(io, "atomic_path", recording)
     res = [CaseResult(case="case_000", set="REF", scenario=2, truth_x=1000.0, truth_y=1000.0,
-                      truth_yaw_deg=10.0, fix_x=1000.2, fix_y=1000.1, fix_heading_deg=10.1,
+                      truth_yaw_deg=10.0, fix_x=1000.2, fix_y=1000.1, fix_grid_heading_deg=10.1,
                       confidence=0.9, score=0.01)]
     write_outputs(tmp_path, res, [], EvalConfig(scenario=2), hill_dem(), command="")
     assert {"tables.txt", "tables.md"} <= set(staged)

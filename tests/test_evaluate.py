@@ -126,3 +126,56 @@ def test_a_negative_dem_sigma_is_refused_before_any_case(tmp_dem_file, tmp_path)
             "--out", tmp_path / "e")
     assert r.exit_code == 2 and "--dem-sigma-m" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "e").exists()
+
+
+def _utm_hills_dem():
+    """2 km square at 20 m with two hills, placed in UTM 11N ~200 km west of its central meridian
+    at 37 deg N: grid north is 1.35 deg off true north there."""
+    from skyfix.dem import Dem
+
+    n = 101
+    yy, xx = np.mgrid[0:n, 0:n] * 20.0
+    z = (100.0 + 300.0 * np.exp(-((xx - 1500.0) ** 2 + (yy - 600.0) ** 2) / (2 * 300.0**2))
+         + 200.0 * np.exp(-((xx - 400.0) ** 2 + (yy - 1500.0) ** 2) / (2 * 250.0**2)))
+    return Dem.from_array(z, 20.0, x0=300_000.0, y0=4_102_000.0, crs="EPSG:32611")
+
+
+def _pyproj_convergence(x, y):
+    """PROJ's own meridian convergence [deg] in UTM 11N at (x, y): the independent reference."""
+    from pyproj import CRS, Proj, Transformer
+
+    c = CRS.from_user_input("EPSG:32611")
+    lon, lat = Transformer.from_crs(c, c.geodetic_crs, always_xy=True).transform(x, y)
+    return Proj(c).get_factors(lon, lat).meridian_convergence
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", [2, 3])  # locate's Fix, estimate_heading's HeadingFix
+def test_results_csv_gives_headings_from_true_north_with_grid_and_convergence(tmp_dem_file, tmp_path,
+                                                                              scenario):
+    """conventions.md: a heading in every output, reports included, is from true north with the
+    grid heading and the convergence beside it. The heading error stays grid minus grid."""
+    import csv
+
+    dem = tmp_dem_file(_utm_hills_dem())
+    out = tmp_path / "e"
+    r = run("evaluate", "--dem", dem, "--scenario", scenario, "--cases", 1, "--skylines", "truth",
+            "--out", out)
+    assert r.exit_code == 0, r.output
+    (row,) = list(csv.DictReader(open(out / "results.csv")))
+    assert row["status"] == "ok"
+    f = {k: float(v) for k, v in row.items() if k.endswith("_deg") or k in ("fix_x", "fix_y", "truth_x", "truth_y")}
+
+    def same_angle(a, b, tol=3e-4):  # the CSV keeps 4 decimals
+        return abs((a - b + 180.0) % 360.0 - 180.0) < tol
+
+    conv = f["meridian_convergence_deg"]
+    assert abs(conv - _pyproj_convergence(f["fix_x"], f["fix_y"])) < 1e-3
+    assert 1.0 < abs(conv) < 2.0  # grid and true north really differ here
+    assert same_angle(f["fix_heading_deg"], f["fix_grid_heading_deg"] + conv)
+    assert not same_angle(f["fix_heading_deg"], f["fix_grid_heading_deg"], tol=0.5)
+    tconv = f["truth_meridian_convergence_deg"]
+    assert abs(tconv - _pyproj_convergence(f["truth_x"], f["truth_y"])) < 1e-3
+    assert same_angle(f["truth_heading_deg"], f["truth_yaw_deg"] + tconv)
+    err = abs((f["fix_grid_heading_deg"] - f["truth_yaw_deg"] + 180.0) % 360.0 - 180.0)
+    assert abs(f["heading_error_deg"] - err) < 2e-4 and err < 1.0

@@ -13,7 +13,7 @@ from skyfix.report import (CaseResult, heading_vs_prior_rows, read_results_csv, 
 
 def _case(set_, dx, dyaw, conf, scenario=1, status="ok", offset=0.0):
     return CaseResult(case=f"{set_}-{dx}", set=set_, scenario=scenario, truth_x=100.0, truth_y=200.0,
-                      truth_yaw_deg=359.5, fix_x=100.0 + dx, fix_y=200.0, fix_heading_deg=(359.5 + dyaw) % 360,
+                      truth_yaw_deg=359.5, fix_x=100.0 + dx, fix_y=200.0, fix_grid_heading_deg=(359.5 + dyaw) % 360,
                       confidence=conf, status=status, prior_offset_m=offset, time_profile_s=1.0, time_locate_s=2.0)
 
 
@@ -107,3 +107,29 @@ def test_atomic_writes_leave_files_with_the_usual_permissions(tmp_path):
     os.umask(umask)
     write_json(tmp_path / "a.json", {"x": 1})
     assert (tmp_path / "a.json").stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_results_csv_gives_both_norths_and_reads_an_older_file(tmp_path):
+    """fix_heading_deg is from true north (grid + convergence at the fix), truth_heading_deg too;
+    a results.csv written before these columns (its fix_heading_deg the grid one) reads back
+    with the same heading error."""
+    import csv
+
+    c = CaseResult(case="c", set="REF", scenario=2, truth_x=0.0, truth_y=0.0, truth_yaw_deg=240.75,
+                   truth_meridian_convergence_deg=-14.05, fix_x=0.1, fix_y=0.0,
+                   fix_grid_heading_deg=240.8, meridian_convergence_deg=-14.0)
+    assert c.fix_heading_deg == pytest.approx(226.8) and c.truth_heading_deg == pytest.approx(226.7)
+    assert c.heading_error_deg == pytest.approx(0.05)  # grid vs grid, not 0.1 across positions
+    assert math.isnan(CaseResult(case="c", set="REF", scenario=2, truth_x=0.0, truth_y=0.0,
+                                 truth_yaw_deg=1.0).fix_heading_deg)
+    path = write_results_csv([c], tmp_path / "results.csv")
+    (row,) = list(csv.DictReader(open(path)))
+    assert (float(row["fix_heading_deg"]), float(row["fix_grid_heading_deg"]),
+            float(row["meridian_convergence_deg"])) == (226.8, 240.8, -14.0)
+    assert (float(row["truth_heading_deg"]), float(row["truth_yaw_deg"])) == (226.7, 240.75)
+    assert read_results_csv(path)[0].heading_error_deg == pytest.approx(0.05)
+    old = tmp_path / "old.csv"
+    old.write_text("case,set,scenario,truth_x,truth_y,truth_yaw_deg,fix_x,fix_y,fix_heading_deg,status\n"
+                   "c,REF,2,0,0,240.75,0.1,0,240.78,ok\n")
+    (back,) = read_results_csv(old)
+    assert back.fix_grid_heading_deg == 240.78 and back.heading_error_deg == pytest.approx(0.03)

@@ -85,7 +85,7 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
     from .pose import locate
     from .profile import acquisition_profile
     from .report import CaseResult
-    from .north import meridian_convergence_deg, true_heading_deg
+    from .north import meridian_convergence_deg
     from .errors import ParameterError
     from .simulate import check_seed, simulate_acquisition
 
@@ -140,9 +140,11 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
 
     write_json(out / "fix.json", fix.to_dict())
     res = CaseResult(case="demo", set="REF", scenario=1, truth_x=truth.x, truth_y=truth.y,
-                     truth_yaw_deg=truth.yaw_deg, truth_pitch_deg=truth.pitch_deg,
-                     truth_roll_deg=truth.roll_deg, fix_x=fix.x, fix_y=fix.y,
-                     fix_heading_deg=fix.grid_heading_deg, fix_pitch_deg=fix.pitch_deg,
+                     truth_yaw_deg=truth.yaw_deg,
+                     truth_meridian_convergence_deg=meridian_convergence_deg(dem.crs_wkt, truth.x, truth.y),
+                     truth_pitch_deg=truth.pitch_deg, truth_roll_deg=truth.roll_deg, fix_x=fix.x,
+                     fix_y=fix.y, fix_grid_heading_deg=fix.grid_heading_deg,
+                     meridian_convergence_deg=fix.meridian_convergence_deg, fix_pitch_deg=fix.pitch_deg,
                      fix_roll_deg=fix.roll_deg, confidence=fix.confidence, score=fix.score)
     overlay = plot_skyline_overlay(out / "skyline_overlay.png", res, profile, dem,
                                    EvalConfig(scenario=1), prior_pitch_deg=acq.prior_pitch_deg,
@@ -179,8 +181,7 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
     say(f"fix: x {fix.x:.1f} m, y {fix.y:.1f} m ({fix.crs}), heading {fix.heading_deg:.2f} deg from "
         f"true north (grid {fix.grid_heading_deg:.2f}), pitch {fix.pitch_deg:.2f}, roll "
         f"{fix.roll_deg:.2f}, confidence {fix.confidence:.2f}")
-    truth_heading = true_heading_deg(truth.yaw_deg, meridian_convergence_deg(dem.crs_wkt, truth.x, truth.y))
-    say(f"truth: x {truth.x:.1f} m, y {truth.y:.1f} m, heading {truth_heading:.2f} deg from true north "
+    say(f"truth: x {truth.x:.1f} m, y {truth.y:.1f} m, heading {res.truth_heading_deg:.2f} deg from true north "
         f"-> position error {res.position_error_m:.2f} m, heading error {res.heading_error_deg:.2f} deg")
     say("times: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in timings.items()))
     say(f"wrote {out / 'fix.json'}, {out / 'summary.json'} and the figures {overlay.name}, "

@@ -133,13 +133,16 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
              case_index: int) -> tuple[CaseResult, dict]:
     """One case through the board pipeline; returns the result and what the figures need."""
     from .formats import load_acquisition, load_truth
+    from .north import meridian_convergence_deg
     from .pose import estimate_heading, locate
     from .profile import acquisition_profile
 
     truth = load_truth(case_dir)  # scoring only: the pipeline below never sees it
+    # the simulator's yaw is from grid north; the report gives the truth from true north beside it
     res = CaseResult(case=case_dir.name, set=set_name, scenario=cfg.scenario, truth_x=truth.x,
-                     truth_y=truth.y, truth_yaw_deg=truth.yaw_deg, truth_pitch_deg=truth.pitch_deg,
-                     truth_roll_deg=truth.roll_deg)
+                     truth_y=truth.y, truth_yaw_deg=truth.yaw_deg,
+                     truth_meridian_convergence_deg=meridian_convergence_deg(dem.crs_wkt, truth.x, truth.y),
+                     truth_pitch_deg=truth.pitch_deg, truth_roll_deg=truth.roll_deg)
     res.map_offset_x_m, res.map_offset_y_m = map_offset_of(case_dir)
     extra: dict = {}
     try:
@@ -162,7 +165,9 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
                                   camera_height_m=acq.camera_height_m, planet=cfg.planet,
                                   prior_pitch_deg=acq.prior_pitch_deg, prior_roll_deg=acq.prior_roll_deg)
             res.fix_x, res.fix_y = x, y
-            res.fix_heading_deg, res.fix_pitch_deg, res.fix_roll_deg = hf.grid_heading_deg, hf.pitch_deg, hf.roll_deg
+            res.fix_grid_heading_deg = hf.grid_heading_deg
+            res.meridian_convergence_deg = hf.meridian_convergence_deg  # at the rough (x, y)
+            res.fix_pitch_deg, res.fix_roll_deg = hf.pitch_deg, hf.roll_deg
             res.heading_sigma_deg, res.confidence, res.score = hf.heading_sigma_deg, hf.confidence, hf.score
             extra["features"] = dict(hf.features)
         else:
@@ -176,7 +181,9 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
                          prior_pitch_deg=acq.prior_pitch_deg, prior_roll_deg=acq.prior_roll_deg,
                          camera_height_m=acq.camera_height_m, planet=cfg.planet,
                          config=_pose_config(cfg.dem_sigma_m), **kw)
-            res.fix_x, res.fix_y, res.fix_heading_deg = fix.x, fix.y, fix.grid_heading_deg
+            res.fix_x, res.fix_y = fix.x, fix.y
+            res.fix_grid_heading_deg = fix.grid_heading_deg
+            res.meridian_convergence_deg = fix.meridian_convergence_deg
             res.fix_pitch_deg, res.fix_roll_deg = fix.pitch_deg, fix.roll_deg
             res.position_sigma_m, res.heading_sigma_deg = fix.position_sigma_m, fix.heading_sigma_deg
             res.confidence, res.score = fix.confidence, fix.score
@@ -342,7 +349,7 @@ def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig, *
     for label, x, y, yaw, pitch, roll, style in (
             ("DEM at truth", res.truth_x, res.truth_y, res.truth_yaw_deg, res.truth_pitch_deg,
              res.truth_roll_deg, dict(color="tab:green", lw=2, alpha=0.6)),
-            ("DEM at fix", res.fix_x, res.fix_y, res.fix_heading_deg, res.fix_pitch_deg,
+            ("DEM at fix", res.fix_x, res.fix_y, res.fix_grid_heading_deg, res.fix_pitch_deg,
              res.fix_roll_deg, dict(color="tab:red", lw=1, ls="--"))):
         if not all(math.isfinite(v) for v in (x, y, yaw)):
             continue

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ._io import atomic_path
-from .north import wrap_deg
+from .north import true_heading_deg, wrap_deg
 from .optional import pyplot
 
 #: what "correct" means per scenario: position error [m] and heading error [deg] at most
@@ -29,8 +29,14 @@ ROVER_SLOWDOWN = 30.0
 @dataclass
 class CaseResult:
     """One evaluated case. Angles [deg], positions [m], times [s], memory [MB]; NaN when unknown.
-    The truth's yaw and the fix's heading are both from grid north here (the simulator's
-    frame), so their difference is the heading error whatever the CRS's convergence."""
+
+    Headings come in both norths (``conventions.md``, "Units and angles"): ``truth_yaw_deg`` and
+    ``fix_grid_heading_deg`` are from grid north (the simulator's and the localiser's frame);
+    ``truth_heading_deg`` and ``fix_heading_deg`` (properties) are from true north, each the grid
+    one plus the meridian convergence at its own position (``truth_meridian_convergence_deg``,
+    ``meridian_convergence_deg`` at the fix; NaN, and the true heading the grid one, where the
+    CRS has no true north). The heading error is grid minus grid: the rotation the localiser got
+    wrong, free of the convergence's change between the truth's and the fix's positions."""
 
     case: str
     set: str
@@ -38,12 +44,14 @@ class CaseResult:
     truth_x: float
     truth_y: float
     truth_yaw_deg: float
+    truth_meridian_convergence_deg: float = math.nan
     truth_pitch_deg: float = 0.0
     truth_roll_deg: float = 0.0
     prior_offset_m: float = 0.0
     fix_x: float = math.nan
     fix_y: float = math.nan
-    fix_heading_deg: float = math.nan
+    fix_grid_heading_deg: float = math.nan
+    meridian_convergence_deg: float = math.nan
     fix_pitch_deg: float = math.nan
     fix_roll_deg: float = math.nan
     confidence: float = math.nan
@@ -58,6 +66,18 @@ class CaseResult:
     map_offset_x_m: float = 0.0
     map_offset_y_m: float = 0.0
     extra: dict = field(default_factory=dict)
+
+    @property
+    def truth_heading_deg(self) -> float:
+        """The truth's heading [deg] from true north."""
+        return true_heading_deg(self.truth_yaw_deg, self.truth_meridian_convergence_deg)
+
+    @property
+    def fix_heading_deg(self) -> float:
+        """The fix's heading [deg] from true north (NaN without a fix)."""
+        if not math.isfinite(self.fix_grid_heading_deg):
+            return math.nan
+        return true_heading_deg(self.fix_grid_heading_deg, self.meridian_convergence_deg)
 
     @property
     def error_x_m(self) -> float:
@@ -81,19 +101,33 @@ class CaseResult:
 
     @property
     def heading_error_deg(self) -> float:
-        return float(abs(wrap_deg(self.fix_heading_deg - self.truth_yaw_deg)))
+        return float(abs(wrap_deg(self.fix_grid_heading_deg - self.truth_yaw_deg)))
 
     @property
     def correct(self) -> bool:
         pos_tol, head_tol = TOLERANCES[self.scenario]
-        if self.status != "ok" or not math.isfinite(self.fix_heading_deg):
+        if self.status != "ok" or not math.isfinite(self.fix_grid_heading_deg):
             return False
         pos_ok = self.scenario == 3 or self.position_error_map_m <= pos_tol
         return bool(pos_ok and self.heading_error_deg <= head_tol)
 
 
-CSV_FIELDS = [f.name for f in fields(CaseResult) if f.name != "extra"] + [
-    "error_x_m", "error_y_m", "position_error_m", "position_error_map_m", "heading_error_deg", "correct"]
+def _csv_fields() -> list[str]:
+    # each true-north heading (a property) sits just before its grid heading and convergence
+    names = []
+    for f in fields(CaseResult):
+        if f.name == "truth_yaw_deg":
+            names.append("truth_heading_deg")
+        elif f.name == "fix_grid_heading_deg":
+            names.append("fix_heading_deg")
+        if f.name != "extra":
+            names.append(f.name)
+    return names + ["error_x_m", "error_y_m", "position_error_m", "position_error_map_m",
+                    "heading_error_deg", "correct"]
+
+
+#: results.csv's columns, in order: CaseResult's fields, its true headings and its errors
+CSV_FIELDS = _csv_fields()
 
 
 def write_results_csv(results: list[CaseResult], path) -> Path:
@@ -104,7 +138,8 @@ def write_results_csv(results: list[CaseResult], path) -> Path:
             w.writeheader()
             for r in results:
                 row = {k: v for k, v in asdict(r).items() if k != "extra"}
-                row.update(error_x_m=r.error_x_m, error_y_m=r.error_y_m,
+                row.update(truth_heading_deg=r.truth_heading_deg, fix_heading_deg=r.fix_heading_deg,
+                           error_x_m=r.error_x_m, error_y_m=r.error_y_m,
                            position_error_m=r.position_error_m,
                            position_error_map_m=r.position_error_map_m,
                            heading_error_deg=r.heading_error_deg, correct=r.correct)
@@ -113,10 +148,14 @@ def write_results_csv(results: list[CaseResult], path) -> Path:
 
 
 def read_results_csv(path) -> list[CaseResult]:
+    """The cases of a ``results.csv`` (the computed columns are recomputed, not read)."""
     out = []
     names = {f.name: f.type for f in fields(CaseResult)}
     with open(path, newline="") as f:
         for row in csv.DictReader(f):
+            if "fix_grid_heading_deg" not in row and "fix_heading_deg" in row:
+                # written before the true-north columns: its fix_heading_deg was the grid heading
+                row["fix_grid_heading_deg"] = row.pop("fix_heading_deg")
             kw = {}
             for k, v in row.items():
                 if k not in names or k == "extra":
