@@ -323,12 +323,18 @@ def test_plot_and_score_map_suffixes(tmp_path, dem_file, profile_json, stub_loca
     ({"attitude_prior": {"pitch_deg": None}}, "attitude_prior.pitch_deg"),
     ({"attitude_prior": {"roll_deg": "a"}}, "attitude_prior.roll_deg"),
     ({"attitude_prior": 5}, "attitude_prior must be an object"),
-    # misspelt fields were ignored and their values silently replaced by the defaults
-    ({"camera__dist__K1": -0.2}, "camera.distortion: unknown field 'K1'"),
-    ({"camera__k1": -0.2}, "camera: unknown field 'k1'"),
-    ({"attitude_prior": {"pitch": 5, "roll": 3}}, "attitude_prior: unknown fields 'pitch', 'roll'"),
-    ({"frame__tilt": 10}, "frames[0]: unknown field 'tilt'"),
-    ({"pano__hfov": 90}, "panorama: unknown field 'hfov'"),
+    # misspelt fields were ignored and their values silently replaced by the defaults: one that
+    # looks like a known field (case, underscores, unit suffix, or close spelling) is refused
+    ({"camera__dist__K1": -0.2}, "camera.distortion: unknown field 'K1' (like 'k1')"),
+    ({"camera__k1": -0.2}, "camera: unknown field 'k1' (like 'camera.distortion.k1')"),
+    ({"attitude_prior": {"pitch": 5, "roll": 3}},
+     "attitude_prior: unknown fields 'pitch' (like 'pitch_deg'), 'roll' (like 'roll_deg')"),
+    ({"attitude_prior": {"Pitch_deg": 5}}, "attitude_prior: unknown field 'Pitch_deg' (like 'pitch_deg')"),
+    ({"attitude_prior": {"pich_deg": 5}}, "unknown field 'pich_deg' (like 'pitch_deg')"),
+    ({"frame__tilt": 10}, "frames[0]: unknown field 'tilt' (like 'tilt_deg')"),
+    ({"frame__tilt_rad": 0.2}, "frames[0]: unknown field 'tilt_rad' (like 'tilt_deg')"),
+    ({"camera__heigth": 1024}, "camera: unknown field 'heigth' (like 'height')"),
+    ({"pano__hfov": 90}, "panorama: unknown field 'hfov' (like 'hfov_deg')"),
 ])
 def test_impossible_acquisition_values_name_the_field(tmp_path, changes, field):
     root = write_acq(tmp_path / "acq", **changes)
@@ -354,6 +360,52 @@ def test_impossible_acquisition_values_name_the_field(tmp_path, changes, field):
 ])
 def test_plausible_acquisitions_still_load(tmp_path, changes):
     load_acquisition(write_acq(tmp_path / "acq", **changes))
+
+
+@pytest.mark.parametrize("changes, name", [
+    ({"frame__exposure_ms": 12.5}, "frames[0]: field 'exposure_ms'"),
+    ({"camera__model": "navcam-left"}, "camera: field 'model'"),
+    ({"camera__dist__k4": 0.0}, "camera.distortion: field 'k4'"),  # a model skyfix lacks, not a typo
+    ({"attitude_prior": {"pitch_deg": 2.0, "roll_deg": -1.0, "source": "imu"}}, "attitude_prior: field 'source'"),
+    ({"pano__exposure_ms": 4.0}, "panorama: field 'exposure_ms'"),
+])
+def test_an_outside_tools_own_fields_are_ignored_with_a_warning(tmp_path, caplog, changes, name):
+    """conventions.md lists the fields without forbidding others: a field unlike any known one is
+    a producer's metadata, read past with a warning naming it, and changes nothing."""
+    import logging
+
+    base = {"pano__hfov_deg": 360.0} if any(k.startswith("pano__") for k in changes) else {}
+    if "attitude_prior" in changes:
+        base = {"attitude_prior": {"pitch_deg": 2.0, "roll_deg": -1.0}}
+    plain = load_acquisition(write_acq(tmp_path / "acq", **base))
+    assert not caplog.records
+    with caplog.at_level(logging.WARNING, logger="skyfix"):
+        extended = load_acquisition(write_acq(tmp_path / "acq", **{**base, **changes}))
+    assert extended == plain
+    assert name in caplog.text and "ignored" in caplog.text
+
+
+def test_a_field_on_every_frame_is_one_warning(tmp_path, caplog):
+    import logging
+
+    root = write_acq(tmp_path / "acq")
+    d = json.loads((root / "acquisition.json").read_text())
+    for i in (1, 2):
+        (root / f"f{i}.png").write_bytes(b"placeholder")
+        d["frames"].append({"image": f"f{i}.png", "pan_deg": 40.0 * i})
+    for f in d["frames"]:
+        f["exposure_ms"] = 10.0
+    (root / "acquisition.json").write_text(json.dumps(d))
+    with caplog.at_level(logging.WARNING, logger="skyfix"):
+        assert len(load_acquisition(root).frames) == 3
+    assert [r.getMessage().split(":")[0] for r in caplog.records] == ["frames"]
+    assert "'exposure_ms'" in caplog.text
+
+
+def test_the_profile_command_reads_past_an_outside_tools_field(tmp_path, stub_profile):
+    r = run("profile", write_acq(tmp_path / "a", frame__exposure_ms=12.5))
+    assert r.exit_code == 0, r.output
+    assert "frames[0]: field 'exposure_ms' not read by skyfix" in r.output
 
 
 def test_profile_command_names_the_bad_field(tmp_path, stub_profile):

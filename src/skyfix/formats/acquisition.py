@@ -15,7 +15,8 @@ import numpy as np
 from .._io import write_json
 from ..camera import Camera, Distortion
 from ..errors import AcquisitionError
-from .values import attitude_prior_field, camera_height_field, in_range, known_fields, number_field
+from .values import (attitude_prior_field, camera_height_field, in_range, known_fields, number_field,
+                     warn_ignored)
 
 
 ACQUISITION_FILE = "acquisition.json"
@@ -127,13 +128,17 @@ MAX_PINHOLE_FOV_DEG = 170.0
 MAX_PAN_DEG = 3600.0
 #: the fields of an acquisition's camera (conventions.md)
 CAMERA_FIELDS = ("width", "height", "fx", "fy", "cx", "cy", "distortion")
+#: the fields of its distortion (OpenCV's order)
+DISTORTION_FIELDS = ("k1", "k2", "p1", "p2", "k3")
+#: the fields of a frame
+FRAME_FIELDS = ("image", "pan_deg", "tilt_deg")
 
 
 def _parse_camera(d) -> Camera:
     if not isinstance(d, dict):
         raise AcquisitionError("acquisition.json: 'camera' must be an object")
     w = "camera"
-    known_fields(d, CAMERA_FIELDS, w)
+    known_fields(d, CAMERA_FIELDS, w, elsewhere={"camera.distortion": DISTORTION_FIELDS})
     width = number_field(d, "width", w, positive=True)
     height = number_field(d, "height", w, positive=True)
     if width != int(width) or height != int(height):
@@ -141,7 +146,7 @@ def _parse_camera(d) -> Camera:
     dist = d.get("distortion") or {}
     if not isinstance(dist, dict):
         raise AcquisitionError("camera.distortion must be an object with k1, k2, p1, p2, k3")
-    known_fields(dist, ("k1", "k2", "p1", "p2", "k3"), "camera.distortion")
+    known_fields(dist, DISTORTION_FIELDS, "camera.distortion")
     dist_v = {k: number_field(dist, k, "camera.distortion", 0.0) for k in ("k1", "k2", "p1", "p2", "k3")}
     fx, fy = number_field(d, "fx", w, positive=True), number_field(d, "fy", w, positive=True)
     for name, f, size in (("fx", fx, width), ("fy", fy, height)):
@@ -231,11 +236,12 @@ def load_acquisition(folder) -> Acquisition:
         camera = _parse_camera(data["camera"])
         if not isinstance(frames_raw, list) or not frames_raw:
             raise AcquisitionError("acquisition.json: 'frames' must be a non-empty list")
+        ignored = []  # a tool's own field on every frame is one warning, not one per frame
         for i, f in enumerate(frames_raw):
             where = f"frames[{i}]"
             if not isinstance(f, dict) or not isinstance(f.get("image"), str):
                 raise AcquisitionError(f"{where} must be an object with an 'image' file name")
-            known_fields(f, ("image", "pan_deg", "tilt_deg"), where)
+            ignored += known_fields(f, FRAME_FIELDS, where, warn=False)
             # tilt beyond +-90 deg points the camera backwards over the top, upside down: no
             # mast does that, and 400 is a typing or unit mistake
             tilt = in_range(number_field(f, "tilt_deg", where, 0.0), -90.0, 90.0, f"{where}.tilt_deg",
@@ -247,6 +253,7 @@ def load_acquisition(folder) -> Acquisition:
                 raise AcquisitionError(f"{where} and frames[{first}] both name {f['image']}: each "
                                        "frame is its own image")
             frames.append(Frame(f["image"], pan, tilt))
+        warn_ignored("frames[0]" if len(frames) == 1 else "frames", ignored, FRAME_FIELDS)
     else:
         if not isinstance(pano_raw, dict) or not isinstance(pano_raw.get("image"), str):
             raise AcquisitionError("acquisition.json: 'panorama' must be an object with an 'image'")

@@ -4,14 +4,18 @@ and says what was expected.
 
 from __future__ import annotations
 
+import difflib
 import json
+import logging
 import math
+import re
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import AcquisitionError, SkyfixError
 
+log = logging.getLogger(__name__)
 
 #: [m] highest camera above the ground skyfix accepts. A rover's mast is ~2 m and a drone or
 #: balloon a few km; from 100 km up the skyline is the planet's limb, not the DEM's terrain
@@ -39,14 +43,82 @@ def number_field(obj: dict, key: str, where: str, default=None, *, positive=Fals
     return float(v)
 
 
-def known_fields(obj: dict, keys, where: str, err=AcquisitionError) -> None:
-    """Refuse a field of ``obj`` not among ``keys``, naming it and the known ones: a misspelt
-    field (``K1`` for ``k1``, ``pitch`` for ``pitch_deg``) would otherwise be ignored and its
-    value silently replaced by the default."""
+#: a unit written as the last word of a field name: ``pitch`` and ``pitch_rad`` are ``pitch_deg``
+#: with its unit left off or changed, not another field
+_UNIT_SUFFIX = re.compile(r"_(deg|degrees|rad|radians|m|mm|cm|km|px|pixels|s|ms)$", re.IGNORECASE)
+#: difflib's ratio above which a field name (case, separators and unit left out) is taken for a
+#: misspelling of a known one: 'pich_deg' 0.93, 'heigth' 0.83, 'distorsion' 0.9 are; outside
+#: metadata such as 'exposure_ms', 'model', 'source', 'timestamp' stays under 0.45
+RESEMBLANCE_CUTOFF = 0.8
+
+
+def _squash(name: str) -> str:
+    return re.sub(r"[\s_\-]", "", name.lower())
+
+
+def _bare(name: str) -> str:
+    return _squash(_UNIT_SUFFIX.sub("", name.strip()))
+
+
+def resembling_field(name: str, keys) -> str | None:
+    """The field among ``keys`` that ``name`` looks like a misspelling of, or None: the same
+    ignoring case, underscores and a unit suffix (``K1``, ``Pitch_deg``, ``pitch``, ``tilt_rad``),
+    or as close as :data:`RESEMBLANCE_CUTOFF` by :func:`difflib.get_close_matches`."""
+    for k in keys:
+        if _squash(name) == _squash(k) or _bare(name) == _bare(k):
+            return k
+    forms = {}
+    for k in keys:
+        forms.setdefault(_squash(k), k)
+        forms.setdefault(_bare(k), k)
+    for form in (_squash(name), _bare(name)):
+        close = difflib.get_close_matches(form, list(forms), n=1, cutoff=RESEMBLANCE_CUTOFF)
+        if close:
+            return forms[close[0]]
+    return None
+
+
+def warn_ignored(where: str, names, keys) -> None:
+    """Log that the fields ``names`` of the object at ``where`` are not read (its fields: ``keys``)."""
+    names = list(dict.fromkeys(names))
+    if names:
+        log.warning("%s: field%s %s not read by skyfix (its fields are %s): ignored", where,
+                    "s" * (len(names) > 1), ", ".join(map(repr, names)), ", ".join(keys))
+
+
+def known_fields(obj: dict, keys, where: str, err=AcquisitionError, *, elsewhere=None,
+                 warn: bool = True) -> list[str]:
+    """Check the fields of ``obj`` (the object at ``where``) against its known ``keys``.
+
+    An unknown field that looks like a known one (:func:`resembling_field`: ``K1`` for ``k1``,
+    ``pitch`` for ``pitch_deg``) is refused with ``err``, naming both: it would otherwise be
+    ignored and its value silently replaced by the default. So is one that resembles a field of
+    another object (``elsewhere``: {where it belongs: its fields}), such as a camera's ``k1``
+    that belongs in its ``distortion``. Any other unknown field is a producer's own metadata
+    (a frame's ``exposure_ms``): conventions.md does not forbid it, so it is ignored with a
+    warning naming it (``warn=False``: the caller warns, once for many objects alike). Returns
+    those ignored fields."""
     unknown = [k for k in obj if k not in keys]
-    if unknown:
-        raise err(f"{where}: unknown field{'s' * (len(unknown) > 1)} {', '.join(map(repr, unknown))} "
-                  f"(its fields are {', '.join(keys)}): check the spelling")
+    if not unknown:
+        return []
+    wrong, extra = [], []
+    for k in unknown:
+        like = resembling_field(k, keys)
+        if like is None:  # the right name in the wrong object is as lost as a misspelt one
+            like = next((f"{w}.{f}" for w, fs in (elsewhere or {}).items()
+                         if (f := resembling_field(k, fs)) is not None), None)
+        if like is None:
+            extra.append(k)
+        else:
+            wrong.append(f"{k!r} (like {like!r})")
+    if wrong:
+        raise err(f"{where}: unknown field{'s' * (len(wrong) > 1)} {', '.join(wrong)}; its fields are "
+                  f"{', '.join(keys)}. A misspelt or misplaced field would be ignored and its value "
+                  "replaced by the default: correct its name or move it (a field of your own needs a "
+                  "name unlike skyfix's)")
+    if warn:
+        warn_ignored(where, extra, keys)
+    return extra
 
 
 def in_range(v: float, lo: float, hi: float, where: str, why: str) -> float:
