@@ -335,6 +335,11 @@ def test_plot_and_score_map_suffixes(tmp_path, dem_file, profile_json, stub_loca
     ({"frame__tilt_rad": 0.2}, "frames[0]: unknown field 'tilt_rad' (like 'tilt_deg')"),
     ({"camera__heigth": 1024}, "camera: unknown field 'heigth' (like 'height')"),
     ({"pano__hfov": 90}, "panorama: unknown field 'hfov' (like 'hfov_deg')"),
+    # at the top level too: the prior was silently 0, 0
+    ({"attitude_priors": {"pitch_deg": 8.0}}, "unknown field 'attitude_priors' (like 'attitude_prior')"),
+    ({"camera_height": 3.0}, "unknown field 'camera_height' (like 'camera_height_m')"),
+    # a coefficient of OpenCV's beyond the five skyfix models, non-zero: undistorted wrongly
+    ({"camera__dist__k4": 0.02}, "camera.distortion: k4 = 0.02: skyfix models OpenCV's five"),
 ])
 def test_impossible_acquisition_values_name_the_field(tmp_path, changes, field):
     root = write_acq(tmp_path / "acq", **changes)
@@ -357,6 +362,7 @@ def test_impossible_acquisition_values_name_the_field(tmp_path, changes, field):
     {"attitude_prior": {"pitch_deg": -12.5, "roll_deg": 59.0}},
     {"attitude_prior": None},
     {"camera_height_m": 0.0},
+    {"simulation": {"seed": 3}, "mission": "MSL"},  # a producer's own top-level fields
 ])
 def test_plausible_acquisitions_still_load(tmp_path, changes):
     load_acquisition(write_acq(tmp_path / "acq", **changes))

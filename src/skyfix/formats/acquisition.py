@@ -16,7 +16,7 @@ from .._io import write_json
 from ..camera import Camera, Distortion
 from ..errors import AcquisitionError
 from .values import (attitude_prior_field, camera_height_field, in_range, known_fields, number_field,
-                     warn_ignored)
+                     resembling_field, warn_ignored)
 
 
 ACQUISITION_FILE = "acquisition.json"
@@ -132,6 +132,11 @@ CAMERA_FIELDS = ("width", "height", "fx", "fy", "cx", "cy", "distortion")
 DISTORTION_FIELDS = ("k1", "k2", "p1", "p2", "k3")
 #: the fields of a frame
 FRAME_FIELDS = ("image", "pan_deg", "tilt_deg")
+#: the top-level fields skyfix reads; others are the producer's and kept as they are
+TOP_FIELDS = ("camera", "camera_height_m", "frames", "panorama", "attitude_prior", "truth")
+#: OpenCV's distortion coefficients beyond its five (rational, thin prism, tilted sensor): a lens
+#: calibrated with them is undistorted wrongly by the five alone
+UNMODELLED_DISTORTION = ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tauX", "tauY")
 
 
 def _parse_camera(d) -> Camera:
@@ -147,6 +152,13 @@ def _parse_camera(d) -> Camera:
     if not isinstance(dist, dict):
         raise AcquisitionError("camera.distortion must be an object with k1, k2, p1, p2, k3")
     known_fields(dist, DISTORTION_FIELDS, "camera.distortion")
+    extra = {k: dist[k] for k in UNMODELLED_DISTORTION if k in dist and dist[k] not in (0, 0.0, None)}
+    if extra:
+        raise AcquisitionError(
+            f"camera.distortion: {', '.join(f'{k} = {v!r}' for k, v in extra.items())}: skyfix "
+            "models OpenCV's five coefficients (k1, k2, p1, p2, k3) and would undistort this lens "
+            "wrongly without the others; recalibrate it with the five (cv2.calibrateCamera's default "
+            "flags) or give zeros if they are")
     dist_v = {k: number_field(dist, k, "camera.distortion", 0.0) for k in ("k1", "k2", "p1", "p2", "k3")}
     fx, fy = number_field(d, "fx", w, positive=True), number_field(d, "fy", w, positive=True)
     for name, f, size in (("fx", fx, width), ("fy", fy, height)):
@@ -221,6 +233,15 @@ def load_acquisition(folder) -> Acquisition:
     if not root.is_dir():
         raise AcquisitionError(f"acquisition folder {root} does not exist or is not a folder")
     data = _read_json(root / ACQUISITION_FILE)
+    # a misspelt top-level field ('attitude_priors') would be lost and its default taken; any
+    # other is the producer's own (the simulator's 'simulation'), kept as it is
+    wrong = [f"{k!r} (like {like!r})" for k in data if k not in TOP_FIELDS
+             and (like := resembling_field(k, TOP_FIELDS)) is not None]
+    if wrong:
+        raise AcquisitionError(
+            f"acquisition.json: unknown field{'s' * (len(wrong) > 1)} {', '.join(wrong)}; the "
+            f"fields skyfix reads are {', '.join(TOP_FIELDS)}: correct its name (a field of your "
+            "own needs a name unlike these)")
     frames_raw = data.get("frames")
     pano_raw = data.get("panorama")
     if frames_raw is None and pano_raw is None:
