@@ -94,6 +94,10 @@ def test_prior_area_without_database(world):
     # 0.8-1.2 m as the model is refitted (the score surface's curvature alone said 0.09 m): it
     # covers the error and stays within twice scenario 2's 1 m
     assert err <= fix.position_sigma_m < 2.0
+    # rivals are other answers: candidates refined onto the fix are not listed again as rivals
+    xy = [(c["x"], c["y"]) for c in fix.candidates]
+    assert np.hypot(xy[0][0] - fix.x, xy[0][1] - fix.y) < 1e-6
+    assert all(np.hypot(a[0] - b[0], a[1] - b[1]) > 1.0 for i, a in enumerate(xy) for b in xy[:i])
 
 
 def test_tilted_query_in_a_prior_area_lands_within_decimetres(world):

@@ -293,6 +293,13 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         cand_out = [{"x": d["x"], "y": d["y"], "heading_deg": d["heading"],
                      "score": d["cost"]} for d in results]
         cand_out += [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]} for c in rest]
+        # candidates refined onto one answer are one candidate: the list gave a fix's own
+        # position three times over as its rivals
+        kept = []
+        for c in cand_out:
+            if all(math.hypot(c["x"] - o["x"], c["y"] - o["y"]) > sep for o in kept):
+                kept.append(c)
+        cand_out = kept
     else:
         cx, cy, cs, ch = cands[0]
         other = cands[1][2] if len(cands) > 1 else np.inf
