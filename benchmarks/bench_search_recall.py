@@ -5,7 +5,7 @@ survivors of the whole store, only their blocks decoded), on the same queries, s
 Queries are rendered at random off-grid positions inside the database (``--margin-m`` from its
 edge), every other one from a world that differs from the map (``skyfix.simulate.world``: the
 map refined, 2 m correlated heights, a 3 m shift), with pitch and roll N(0, 3 deg), 0.1 deg
-noise, and every third a 120-deg view instead of a full turn. Per query and stride: the best
+noise, and every third a 120-deg view instead of a full turn (``--views``: the widths in turn). Per query and stride: the best
 candidate's grid position, its distance from the truth, the nearest candidate's distance, the
 runner-up basin's score, the positions scored exactly, the blocks decoded and the search's CPU
 seconds (one thread for BLAS and FFT). Prints how often each agrees with stride 1 over every
@@ -39,6 +39,8 @@ def main(argv=None):
     ap.add_argument("--world-seed", type=int, default=7)
     ap.add_argument("--margin-m", type=float, default=100.0)
     ap.add_argument("--json", help="write every query's record here")
+    ap.add_argument("--views", default="360,360,120",
+                    help="view widths [deg] the queries take in turn (narrow views alone: 250,180,120)")
     args = ap.parse_args(argv)
 
     from skyfix.database import open_database
@@ -47,6 +49,7 @@ def main(argv=None):
     from skyfix.pose import synthetic_profile
     from skyfix.simulate.world import MapErrors, world_dem
 
+    views = [float(v) for v in args.views.split(",")]
     db = open_database(args.db)
     dem = load_dem(db.attrs["dem"]["source"])
     world = world_dem(dem, MapErrors(), seed=args.world_seed)
@@ -58,7 +61,7 @@ def main(argv=None):
     for i in range(args.queries):
         x = rng.uniform(xs.min() + m, xs.max() - m)
         y = rng.uniform(ys.min() + m, ys.max() - m)
-        view = 120.0 if i % 3 == 2 else 360.0
+        view = views[i % len(views)]
         heading, pitch, roll = rng.uniform(0, 360), rng.normal(0, 3), rng.normal(0, 3)
         prof = synthetic_profile(world if i % 2 else dem, x, y, heading, pitch, roll,
                                  camera_height_m=db.camera_height_m, n_bins=db.azimuth_bins,
@@ -84,7 +87,7 @@ def main(argv=None):
     print(f"load average {load0:.2f} -> {os.getloadavg()[0]:.2f}; {len(recs)} queries, 1 BLAS/FFT thread"
           f"{'' if db.has_coarse_index else '; the store has no coarse index: index = stride2'}")
     ref = "stride1"
-    for view in (360.0, 120.0):
+    for view in dict.fromkeys(views):
         sub = [r for r in recs if r["view_deg"] == view]
         if not sub:
             continue

@@ -357,3 +357,31 @@ def test_coarse_index_search_finds_the_exact_winner_and_reads_fewer_blocks(index
             assert (c.row, c.col) == (e.row, e.col)
             assert abs(c.heading_deg - e.heading_deg) < 1e-3
             assert abs(c.score - e.score) <= 1e-4 * (1 + e.score)  # float32 FFT batches
+
+
+def test_a_narrow_view_is_searched_from_the_coarse_index(indexed_store):
+    """Views of 180-250 deg (under ``stride_min_coverage``, at least ``index_min_coverage``): a
+    store with its coarse index serves them too, returning the exhaustive exact search's best
+    position and heading while decoding fewer blocks; a 120-deg view, or a store searched
+    without the index, takes stride 1 over every block, as before."""
+    from skyfix.pose import synthetic_profile
+
+    dem, db = indexed_store
+    rng = np.random.default_rng(5)
+    fast = MatchConfig(keep_fraction=0.02, keep_min=4)
+    for i, view in enumerate((250.0, 180.0, 120.0, 250.0, 180.0, 120.0)):
+        x, y = rng.uniform(380, 780, 2)
+        q = np.asarray(synthetic_profile(dem, x, y, rng.uniform(0, 360), noise_deg=0.2, rng=i,
+                                         coverage_deg=view).elevation_deg, float)
+        assert np.isfinite(q).mean() < fast.stride_min_coverage
+        idx = match_database(db, q, fast)
+        full = match_database(db, q, replace(fast, coarse_index=False))
+        exact = match_database(db, q, MatchConfig(coarse_factor=1))
+        assert "coarse_index" not in full.timing
+        if view >= 180.0:
+            assert idx.timing["coarse_index"] and idx.timing["blocks_read"] < db.n_blocks
+        else:
+            assert "coarse_index" not in idx.timing
+        for got in (idx, full):
+            c, e = got.candidates[0], exact.candidates[0]
+            assert (c.row, c.col) == (e.row, e.col) and abs(c.heading_deg - e.heading_deg) < 1e-3

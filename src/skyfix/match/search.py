@@ -67,7 +67,18 @@ class MatchConfig:
         tallies the same (REF 20/20 within 5 m, all at >= 0.9; DEMERR 8/20, none at >= 0.9).
         The confidence model was fitted on stride-1 searches
     stride_min_coverage : the share of the azimuth bins the query must observe for the coarse
-        stride to apply; a narrower view is searched with stride 1
+        stride to apply over every block; a narrower view is searched with stride 1, unless the
+        store's coarse index serves it (``index_min_coverage``)
+    index_min_coverage : the share of the bins a view under ``stride_min_coverage`` must
+        observe to be searched from the store's coarse index (the best survivors of the whole
+        store rather than of each slice) instead of with stride 1 over every block. Measured
+        (2026-11-28, the 7 x 7 km Sierra store in UTM 11N, views half from a world with map
+        errors, 0.1 deg noise, pitch and roll N(0, 3 deg), ``bench_search_recall.py --views
+        250,180,120``, seeds 11 and 12): the index found stride 1's best position in every
+        250- and 180-deg view (20 and 20), CPU median 1.8 and 2.2-2.3 s against 6.6-6.9 s (50-300
+        of 484 blocks decoded against all); of the 20 120-deg views 3 moved, 2 of them out of the
+        true basin (10 -> 24 m), with 3 %, 10 % or 20 % of the store kept alike. Hence 0.5: a
+        120-deg view keeps stride 1
     top_k : candidates returned, in distinct basins
     nms_radius_m : [m] two candidates are at least this far apart
     slice_rows : positions processed at once (memory ~ slice_rows * bins * 40 bytes)
@@ -86,6 +97,7 @@ class MatchConfig:
     keep_min: int = 16
     coarse_stride: int = 2
     stride_min_coverage: float = 0.75
+    index_min_coverage: float = 0.5
     top_k: int = 8
     nms_radius_m: float = 40.0
     slice_rows: int = 2048
@@ -224,16 +236,20 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
     stride = int(config.coarse_stride)
     if stride < 1:
         raise ParameterError(f"coarse_stride must be >= 1, got {config.coarse_stride}")
-    if np.isfinite(q).mean() < config.stride_min_coverage:
+    indexed = (config.coarse_index and stride == COARSE_STRIDE and f == COARSE_FACTOR
+               and getattr(db, "has_coarse_index", False))
+    coverage = np.isfinite(q).mean()
+    if coverage < config.stride_min_coverage and not (indexed and
+                                                      coverage >= config.index_min_coverage):
         stride = 1
+        indexed = False
     query = prepare_query(q, config.remove_tilt, config.min_observed)
     coarse_q = dense_query(prepare_query(decimate_query(q, f), config.remove_tilt,
                                          max(4, config.min_observed // f))) if f > 1 else None
     scale = float(getattr(db, "scale_deg", 1.0))
     missing = int(getattr(db, "missing", MISSING_RAW))
     exact = ExactPass(query, scale, missing, n, min(config.slice_rows, EXACT_BATCH))
-    if (config.coarse_index and coarse_q is not None and stride == COARSE_STRIDE
-            and f == COARSE_FACTOR and getattr(db, "has_coarse_index", False)):
+    if indexed and coarse_q is not None:
         n_pos, timing = indexed_search(db, coarse_q, exact, config, prior_xy, prior_radius_m)
         return _result(db, exact, n_pos, timing, config)
     t_read = t_reader = t_coarse = 0.0
