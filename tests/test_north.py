@@ -54,6 +54,15 @@ def test_true_and_grid_headings_round_trip():
     assert true_heading_deg(355.0, 14.0) == pytest.approx(9.0)
 
 
+def test_a_heading_just_under_zero_is_zero_not_360():
+    """-1e-17 % 360.0 is 360.0 in floating point: outputs are in [0, 360)."""
+    from skyfix.north import heading_360
+
+    assert -1e-17 % 360.0 == 360.0  # the trap
+    assert heading_360(-1e-17) == 0.0 and heading_360(-0.5) == 359.5 and heading_360(720.25) == 0.25
+    assert true_heading_deg(-1e-17, float("nan")) == 0.0
+
+
 @pytest.mark.shared_data
 def test_heading_reports_both_norths_on_a_projected_dem():
     """estimate_heading works in grid north; its answer adds the true heading, the convergence

@@ -58,9 +58,10 @@ def meridian_convergence_deg(crs_wkt: str, x: float, y: float) -> float:
     return -math.degrees(math.atan2(xs[1] - xs[0], ys[1] - ys[0]))
 
 
-def _wrap(a: float) -> float:
-    # a tiny negative angle % 360 rounds to 360.0 in floating point: [0, 360) means 0 there
-    r = a % 360.0
+def heading_360(a: float) -> float:
+    """A heading [deg] into [0, 360): a tiny negative angle % 360 rounds to 360.0 in floating
+    point (-1e-17 % 360.0 == 360.0), which [0, 360) means as 0."""
+    r = float(a) % 360.0
     return 0.0 if r >= 360.0 else r
 
 
@@ -68,12 +69,12 @@ def true_heading_deg(grid_heading_deg: float, convergence_deg: float) -> float:
     """Heading from true north [deg, 0..360) from the grid heading [deg] and the convergence [deg]
     (the grid heading itself when the convergence is unknown)."""
     if not math.isfinite(convergence_deg):
-        return _wrap(grid_heading_deg)
-    return _wrap(grid_heading_deg + convergence_deg)
+        return heading_360(grid_heading_deg)
+    return heading_360(grid_heading_deg + convergence_deg)
 
 
 def grid_heading_from_true(true_heading_deg: float, convergence_deg: float) -> float:
     """The inverse of :func:`true_heading_deg` [deg, 0..360)."""
     if not math.isfinite(convergence_deg):
-        return _wrap(true_heading_deg)
-    return _wrap(true_heading_deg - convergence_deg)
+        return heading_360(true_heading_deg)
+    return heading_360(true_heading_deg - convergence_deg)

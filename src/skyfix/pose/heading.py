@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..match import prepare_query, score_profiles, tilt_determinable
-from ..north import meridian_convergence_deg, true_heading_deg, wrap_deg
+from ..north import heading_360, meridian_convergence_deg, true_heading_deg, wrap_deg
 from .attitude import fit_attitude
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
                          load_confidence_model, residual_correlation_bins, structureless_cap)
@@ -165,7 +165,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         # the two solves found different basins: the confidence is the profile fit's, about
         # another answer
         conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)
-    grid = yaw % 360.0
+    grid = heading_360(yaw)
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     crs, lon, lat = crs_and_lonlat(dem.crs_wkt, x, y)
     # the fit's sigma counts every bin as independent; neighbouring residuals are not

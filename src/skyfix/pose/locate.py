@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import ParameterError, SkyfixError
 from ..match import match_database, prepare_query, tilt_determinable
-from ..north import meridian_convergence_deg, true_heading_deg, wrap_deg
+from ..north import heading_360, meridian_convergence_deg, true_heading_deg, wrap_deg
 from ..progress import stage
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
                          load_confidence_model, position_sigma, residual_correlation_bins,
@@ -340,7 +340,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     for c in cand_out:  # candidates are read like the fix: headings from true north
         c["heading_deg"] = true_heading_deg(float(c["heading_deg"]),
                                             meridian_convergence_deg(crs_wkt, c["x"], c["y"]))
-    grid = float(heading) % 360.0
+    grid = heading_360(heading)
     fix = Fix(x=float(fx), y=float(fy), crs=crs, lon=lon, lat=lat,
               heading_deg=true_heading_deg(grid, conv), grid_heading_deg=grid,
               meridian_convergence_deg=conv, pitch_deg=float(pitch), roll_deg=float(roll),
