@@ -309,7 +309,7 @@ def test_a_distorted_earth_dem_is_read_into_its_utm_zone(caplog):
     assert dem.crs_name == "EPSG:32611" and dem.scale_error < 1e-3
     assert "stretches distances by up to 0.98 %" in caplog.text
     assert "turns directions by up to 0.56 deg" in caplog.text
-    assert "reprojected to EPSG:32611" in caplog.text and "gdalwarp -t_srs EPSG:32611" in caplog.text
+    assert "reprojected to EPSG:32611" in caplog.text and "gdalwarp -t_srs EPSG:32611 -te" in caplog.text
     rng = np.random.default_rng(3)
     i = rng.integers(0, dem.z.shape[0], 3000)
     j = rng.integers(0, dem.z.shape[1], 3000)
@@ -409,3 +409,40 @@ def test_a_dem_too_wide_for_one_metric_crs_is_refused(tmp_path):
         dst.write(np.full((1, 170, 360), 500.0, np.float32))
     with pytest.raises(DemError, match="spans too much of its body for one metric CRS"):
         load_dem(path)
+
+
+def test_the_advised_gdalwarp_writes_the_grid_read(tmp_path, caplog):
+    """The warning's gdalwarp command (-te, -tr, bilinear: done here with rasterio, GDAL's warper)
+    writes the grid skyfix reads, which then loads with no reprojection and no voids; a
+    plain `gdalwarp -t_srs` kept the empty wedges around the rotated footprint, 30 % of the grid,
+    and the void filling made up terrain in 344,000 of their cells."""
+    import re
+
+    import rasterio
+    from rasterio.transform import from_origin
+    from rasterio.warp import Resampling, reproject
+
+    path = shared_dem_path("sierra_nevada_30m")
+    with caplog.at_level("WARNING", logger="skyfix.dem"):
+        dem = load_dem(path)
+    m = re.search(r"gdalwarp -t_srs (\S+) -te (\S+) (\S+) (\S+) (\S+) -tr (\S+) (\S+) -r bilinear",
+                  caplog.text)
+    crs, (x0, y0, x1, y1, rx, ry) = m.group(1), map(float, m.groups()[1:])
+    w, h = round((x1 - x0) / rx), round((y1 - y0) / ry)
+    out = np.full((h, w), np.nan, np.float32)
+    with rasterio.open(path) as src:
+        reproject(rasterio.band(src, 1), out, dst_transform=from_origin(x0, y1, rx, ry),
+                  dst_crs=crs, resampling=Resampling.bilinear, dst_nodata=np.nan)
+        profile = dict(driver="GTiff", width=w, height=h, count=1, dtype="float32", crs=crs,
+                       transform=from_origin(x0, y1, rx, ry), nodata=np.nan)
+    with rasterio.open(tmp_path / "utm.tif", "w", **profile) as dst:
+        dst.write(out, 1)
+    caplog.clear()
+    with caplog.at_level("INFO", logger="skyfix.dem"):
+        again = load_dem(tmp_path / "utm.tif")
+    assert "reprojected" not in caplog.text and again.voids.n_void == 0
+    assert again.z.shape == dem.z.shape and again.bounds == pytest.approx(dem.bounds, abs=1e-3)
+    # the same grid; heights as GDAL's warper gives them, which widens its bilinear kernel by
+    # each window's scale (measured: median 0.25 m, p99 1.9 m apart, on crests up to 13 m)
+    d = np.abs(again.z - dem.z)
+    assert np.median(d) < 0.5 and np.percentile(d, 99) < 3.0 and abs(np.mean(again.z - dem.z)) < 0.1

@@ -257,6 +257,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 "so positions mean something"
             )
         src_crs = CRS.from_user_input(src.crs.to_wkt())
+        advise = False  # a projected Earth DEM read into its UTM zone: say how to write it once
         unit = (src.units or (None,))[0]
         if unit and unit.strip().lower() not in ("m", "metre", "meter", "metres", "meters"):
             raise DemError(f"{path}'s heights are in {unit!r}, not metres: convert them (e.g. "
@@ -312,13 +313,12 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                     dst_crs = earth_work_crs(src_crs, src.bounds)
                     turn = direction_error_deg(src_crs, src.bounds)
                     log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
-                                "%.1f %%)%s: reprojected to %s, in which coordinates are given; to "
-                                "skip this, reproject the file once: gdalwarp -t_srs %s %s OUT.tif",
+                                "%.1f %%)%s: reprojected to %s, in which coordinates are given",
                                 path.name, _crs_name(src_crs) or src_crs.name, 100 * err,
                                 100 * MAX_SCALE_ERROR,
                                 f" and turns directions by up to {turn:.2f} deg" if turn >= 0.01
-                                else "", _crs_name(dst_crs) or dst_crs.name,
-                                _crs_name(dst_crs) or "'" + dst_crs.to_proj4() + "'", path.name)
+                                else "", _crs_name(dst_crs) or dst_crs.name)
+                    advise = True
         if not dst_crs.is_projected or abs(dst_crs.axis_info[0].unit_conversion_factor - 1.0) > 1e-9:
             raise DemError(f"target CRS {_crs_name(dst_crs) or dst_crs.name} is not projected in metres: "
                            "pass --crs with a metric projected CRS (e.g. a UTM zone)")
@@ -358,6 +358,15 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 "footprint", path.name, z.shape[1], z.shape[0], 100 * kept)
             transform = dst_transform
             log.info("reprojected %s from %s to %s", path.name, _crs_name(src_crs), _crs_name(dst_crs))
+            if advise:
+                # the very grid read here: a plain gdalwarp keeps the empty wedges around the
+                # rotated footprint, which the void filling would then fill with made-up terrain
+                xmin, ymax = transform.c, transform.f
+                xmax, ymin = xmin + z.shape[1] * transform.a, ymax + z.shape[0] * transform.e
+                log.warning("%s: to read this grid without reprojecting it each time, write it once: "
+                            "gdalwarp -t_srs %s -te %.3f %.3f %.3f %.3f -tr %.6f %.6f -r bilinear %s "
+                            "OUT.tif", path.name, _crs_name(dst_crs) or "'" + dst_crs.to_proj4() + "'",
+                            xmin, ymin, xmax, ymax, transform.a, -transform.e, path.name)
     voids = _fill_voids(z, fill_max_cells)
     dx, dy = transform.a, -transform.e
     dem = Dem(z, transform.c + dx / 2, transform.f - dy / 2, dx, dy, dst_crs.to_wkt(),
