@@ -34,6 +34,8 @@ def test_json_output_has_the_documented_fields(tmp_dem_file):
                       "ray_length_m"}
     assert d["crs"] == plane_dem(4_000, 20).crs_name and d["ground_z_m"] == pytest.approx(100.0)
     assert len(d["elevation_deg"]) == 36 and d["azimuth_deg"][9] == 90.0
+    # conventions.md's profile format, sigma_deg included (null: a render has no noise estimate)
+    assert d["sigma_deg"] == [None] * 36
     np.testing.assert_allclose(d["ray_length_m"][0], 2_000.0, rtol=1e-4)  # north edge 2 km away
     assert all(e < 0 for e in d["elevation_deg"])  # a plane's skyline dips below the horizontal
 

@@ -60,6 +60,8 @@ def horizon(dem_path, x, y, lon, lat, camera_height_m, planet, azimuth_bins, max
             "ground_z_m": float(hb.ground_z_m[0]),
             "camera_height_m": camera_height_m, "planet": hb.planet.to_attr(),
             "azimuth_deg": np.round(az, 6), "elevation_deg": np.round(el, 4),
+            # conventions.md's profile format; a render from the DEM carries no noise estimate
+            "sigma_deg": np.full(el.size, np.nan),
             "ray_length_m": np.round(length, 2),
         }))
     else:

@@ -64,7 +64,9 @@ max_distance_option = click.option(
     "--max-distance-m", type=float, default=None,
     help="Longest ray [m] (default: to the DEM edge).")
 crs_option = click.option(
-    "--crs", default=None, help="Metric CRS to reproject a geographic DEM to (default: its UTM zone).")
+    "--crs", default=None, help="Metric CRS to read the DEM in (default: its own if projected within "
+    "0.1 % of true distances, else its UTM zone or a transverse Mercator on its body; `skyfix info` "
+    "prints it).")
 overwrite_option = click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
 detector_option = click.option(
     "--detector", type=click.Choice(METHODS), default=None,

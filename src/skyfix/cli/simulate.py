@@ -37,8 +37,9 @@ def _check_mode_options(mode: str) -> None:
 
 @click.command("simulate")
 @click.argument("dem", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("--x", "x", type=float, required=True, help="Rover easting [m] in the DEM's CRS.")
-@click.option("--y", "y", type=float, required=True, help="Rover northing [m] in the DEM's CRS.")
+@click.option("--x", "x", type=float, required=True,
+              help="Rover easting [m] in the DEM's work CRS (`skyfix info DEM` prints it).")
+@click.option("--y", "y", type=float, required=True, help="Rover northing [m] in the DEM's work CRS.")
 @click.option("--yaw-deg", type=float, required=True,
               help="Heading, clockwise from grid north [deg]; written normalised to [0, 360).")
 @click.option("--pitch-deg", type=float, default=0.0, show_default=True, help="Nose up positive [deg].")
