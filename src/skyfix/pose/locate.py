@@ -232,7 +232,8 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         with stage("  database searched") as st:
             mres = match_database(db, q, config.match, prior_xy=prior_xy,
                                   prior_radius_m=prior_radius_m)
-            st.result = f"{len(mres.candidates)} candidates in distinct basins"
+            k = len(mres.candidates)
+            st.result = f"{k} candidate{'s' * (k != 1)} in distinct basins"
         cands = [(c.x, c.y, c.score, c.heading_deg) for c in mres.candidates]
         step0 = float(db.spacing_m) / 4.0
         crs_wkt = getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else "")
@@ -270,7 +271,8 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         # Without a database the answer is judged at scenario 2's tolerance (1 m), not 5 m.
         sep = config.tolerance_m if db is not None else 1.0
         kw["join_m"] = sep
-        with stage(f"  {min(len(cands), config.refine_candidates)} candidates refined on the DEM") as st:
+        k = min(len(cands), config.refine_candidates)
+        with stage(f"  {k} candidate{'s' * (k != 1)} refined on the DEM") as st:
             results = refine_candidates(dem, q, cands[: config.refine_candidates], step0, config, **kw)
             st.result = f"best clipped cost {results[0]['cost']:.4f} deg^2" if results else "none"
         rest = list(cands[config.refine_candidates:])
