@@ -214,13 +214,16 @@ def test_a_prior_area_off_the_database_is_refused_before_detection(tmp_path, fil
 
 
 @pytest.mark.parametrize("where", [("--x", -500, "--y", 400), ("--lon", 500, "--lat", 0),
-                                   ("--lon", 0, "--lat", 95)])
+                                   ("--lon", 0, "--lat", 95), ("--lon", -100, "--lat", 40)])
 def test_a_heading_position_off_the_dem_is_refused_before_detection(tmp_path, files,
                                                                     detection_forbidden, where):
     dem_path, _, _ = files
     r = _run("heading", _acquisition(tmp_path), "--dem", dem_path, *where)
     assert r.exit_code == 2, r.output
-    assert ("outside the DEM" if where[0] == "--x" else "must be within") in r.output
+    bad_lonlat = where[0] == "--lon" and (abs(where[1]) > 180 or abs(where[3]) > 90)
+    assert ("must be within" if bad_lonlat else "outside the DEM") in r.output
+    if where[0] == "--lon" and "outside the DEM" in r.output:  # named as the user gave it
+        assert f"lon {where[1]}, lat {where[3]}" in r.output
     assert "Traceback" not in r.output
 
 
