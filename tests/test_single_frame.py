@@ -54,6 +54,11 @@ def test_one_frame_gives_roll_pitch_and_heading(dem_path, tmp_path, height):
     assert set(d["determined"]) == {"heading", "pitch", "roll"} and d["determined"]["heading"]
     assert 0 < d["heading_sigma_deg"] < 1.0 and np.isfinite(d["pitch_sigma_deg"])
     assert d["confidence"] >= 0.5
+    # with -o the JSON goes to the file and a closing line says what was found, as locate's does
+    r = run("attitude", acq, "--dem", dem_path, "--x", X, "--y", Y, "--heading-prior-deg", 46.0,
+            "--prior-north", "grid", "-o", tmp_path / "att.json")
+    assert r.exit_code == 0 and json.loads((tmp_path / "att.json").read_text()) == d
+    assert f"confidence {d['confidence']:.2f} -> {tmp_path / 'att.json'}" in r.output
 
 
 def test_a_frame_looking_at_the_ground_is_refused_clearly(dem_path, tmp_path):

@@ -461,6 +461,10 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
         convergence_deg=hf.meridian_convergence_deg)
     if out is not None:
         write_json(out, d)
+        # as locate -o ends: what was found and where it went (the JSON is in the file)
+        note(f"heading {hf.heading_deg:.2f} deg from true north +- {hf.heading_sigma_deg:.2f}, "
+             f"pitch {hf.pitch_deg:.2f}, roll {hf.roll_deg:.2f}, confidence {hf.confidence:.2f} "
+             f"-> {out}")
     else:
         click.echo(to_json(d, indent=1))
     sys.stdout.flush()
