@@ -84,3 +84,20 @@ def test_quiet_silences_opencv_already_loaded(geotiff_image, tmp_path, capfd, mo
         assert "WARN" not in capfd.readouterr().err
     finally:
         cv2.utils.logging.setLogLevel(level)
+
+
+def test_build_db_says_a_dems_warning_once_whatever_its_workers(tmp_path):
+    """A DEM read into another CRS is warned about when the build reads it; each Dask worker
+    reading it again said it again, unprefixed, through the progress bar (three times with two
+    workers)."""
+    z = 100.0 + 40.0 * np.sin(np.arange(60)[None, :] / 7.0) * np.cos(np.arange(60)[:, None] / 9.0)
+    dem = write_dem(tmp_path / "far.tif", Dem.from_array(z, 10.0, crs="EPSG:32611"))  # 0.27 %
+    from skyfix.dem import load_dem
+
+    x0, y0, x1, y1 = load_dem(dem).bounds  # in the work CRS it is read into (UTM 10N)
+    cx, cy = round((x0 + x1) / 2), round((y0 + y1) / 2)
+    r = skyfix("build-db", dem, "-o", tmp_path / "db.zarr", "--bounds", cx - 100, cy - 100,
+               cx + 100, cy + 100,
+               "--spacing-m", 10, "--workers", 2, "--azimuth-bins", 36)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.count("stretches distances") == 1, r.stderr

@@ -5,6 +5,8 @@ then its marker. :mod:`.build` plans the tasks and runs them.
 
 from __future__ import annotations
 
+import logging
+
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,7 +56,15 @@ def dem_for(path, sha256: str):
     key = (path, sha256)
     dem = _DEM_CACHE.get(key)
     if dem is None:
-        dem = load_dems(list(path) if isinstance(path, tuple) else path)
+        # the build said the DEM's warnings when it read it first; a worker's reading says them
+        # again, unprefixed, through the progress bar
+        dem_log = logging.getLogger("skyfix.dem")
+        level = dem_log.level
+        dem_log.setLevel(logging.ERROR)
+        try:
+            dem = load_dems(list(path) if isinstance(path, tuple) else path)
+        finally:
+            dem_log.setLevel(level)
         if dem.checksum != sha256:
             raise DatabaseError(f"DEM {path} changed during the build (SHA-256 {dem.checksum[:12]}..., "
                                 f"expected {sha256[:12]}...): restart the build with the DEM you want")
