@@ -16,7 +16,7 @@ from .._io import write_json
 from ..camera import Camera, Distortion
 from ..errors import AcquisitionError
 from .values import (attitude_prior_field, camera_height_field, in_range, known_fields, number_field,
-                     resembling_field, warn_ignored)
+                     warn_ignored)
 
 
 ACQUISITION_FILE = "acquisition.json"
@@ -159,7 +159,7 @@ def _parse_camera(d) -> Camera:
             "models OpenCV's five coefficients (k1, k2, p1, p2, k3) and would undistort this lens "
             "wrongly without the others; recalibrate it with the five (cv2.calibrateCamera's default "
             "flags) or give zeros if they are")
-    dist_v = {k: number_field(dist, k, "camera.distortion", 0.0) for k in ("k1", "k2", "p1", "p2", "k3")}
+    dist_v = {k: number_field(dist, k, "camera.distortion", 0.0) for k in DISTORTION_FIELDS}
     fx, fy = number_field(d, "fx", w, positive=True), number_field(d, "fy", w, positive=True)
     for name, f, size in (("fx", fx, width), ("fy", fy, height)):
         # a pinhole's field of view is 2 atan(size / 2f): 170 deg and more is no real lens of
@@ -234,14 +234,8 @@ def load_acquisition(folder) -> Acquisition:
         raise AcquisitionError(f"acquisition folder {root} does not exist or is not a folder")
     data = _read_json(root / ACQUISITION_FILE)
     # a misspelt top-level field ('attitude_priors') would be lost and its default taken; any
-    # other is the producer's own (the simulator's 'simulation'), kept as it is
-    wrong = [f"{k!r} (like {like!r})" for k in data if k not in TOP_FIELDS
-             and (like := resembling_field(k, TOP_FIELDS)) is not None]
-    if wrong:
-        raise AcquisitionError(
-            f"acquisition.json: unknown field{'s' * (len(wrong) > 1)} {', '.join(wrong)}; the "
-            f"fields skyfix reads are {', '.join(TOP_FIELDS)}: correct its name (a field of your "
-            "own needs a name unlike these)")
+    # other is the producer's own (the simulator's 'simulation'), kept as it is, unwarned
+    known_fields(data, TOP_FIELDS, "acquisition.json", warn=False)
     frames_raw = data.get("frames")
     pano_raw = data.get("panorama")
     if frames_raw is None and pano_raw is None:
