@@ -290,17 +290,17 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
             except Exception as e:  # pyproj raises CRSError, a plain Exception subclass
                 raise ParameterError(f"cannot understand CRS {crs!r}: {e}") from None
         elif src_crs.is_geographic:
-            west, south, east, north = src.bounds
             if body is EARTH:
                 dst_crs = earth_work_crs(src_crs, src.bounds)
             else:
+                west, south, east, north = src.bounds
                 dst_crs = local_tm_crs(src_crs, (west + east) / 2, (south + north) / 2)
         else:
             dst_crs = src_crs
             err = scale_error(src_crs, src.bounds)
             if err > MAX_SCALE_ERROR:
-                w, s, e, n = geographic_bounds(src_crs, src.bounds)
                 if body is not EARTH:
+                    w, s, e, n = geographic_bounds(src_crs, src.bounds)
                     dst_crs = local_tm_crs(src_crs, (w + e) / 2, (s + n) / 2)
                     log.info("%s: %s stretches distances by up to %.2f %% over the DEM: "
                              "reprojected to %s", path.name, _crs_name(src_crs) or src_crs.name,

@@ -272,14 +272,13 @@ def check_dem_crs(db, dem, db_path, dem_path) -> None:
     zone. A :class:`~skyfix.errors.DatabaseError` naming both and what to do."""
     from pyproj import CRS
 
-    built = getattr(db, "crs_wkt", "") or ""
-    if not built or dem is None or not dem.crs_wkt:
+    if not getattr(db, "crs_wkt", "") or dem is None or not dem.crs_wkt:
         return
-    if CRS.from_wkt(built) == CRS.from_wkt(dem.crs_wkt):
+    built, read = CRS.from_wkt(db.crs_wkt), CRS.from_wkt(dem.crs_wkt)
+    if built == read:
         return
-    name = db.attrs.get("crs_name") or CRS.from_wkt(built).name
     raise DatabaseError(
-        f"the database {db_path} was built in {name}, but --dem {dem_path} is read in "
-        f"{dem.crs_name or CRS.from_wkt(dem.crs_wkt).name}: its positions would be taken for "
+        f"the database {db_path} was built in {db.attrs.get('crs_name') or built.name}, but --dem "
+        f"{dem_path} is read in {dem.crs_name or read.name}: its positions would be taken for "
         "another map's. Rebuild the database from this DEM with this skyfix (build-db; bounds in "
         "the DEM's work CRS, which `skyfix info DEM` prints)")
