@@ -25,9 +25,14 @@ DEMS = ["sierra_nevada_30m", "south_glacier_20m", "alps_srtm3_n46e008"]
 
 
 def random_points(dem, n, seed, margin_m=0.0):
+    """n points [m] with heights (a reprojected DEM's corners hold none), at least margin_m inside
+    its bounds."""
     rng = np.random.default_rng(seed)
     xmin, ymin, xmax, ymax = dem.bounds
-    return (rng.uniform(xmin + margin_m, xmax - margin_m, n), rng.uniform(ymin + margin_m, ymax - margin_m, n))
+    x = rng.uniform(xmin + margin_m, xmax - margin_m, 4 * n + 100)
+    y = rng.uniform(ymin + margin_m, ymax - margin_m, 4 * n + 100)
+    on = np.flatnonzero(np.isfinite(dem.height_at(x, y)))[:n]
+    return x[on], y[on]
 
 
 def speed(points: int, repeats: int) -> None:

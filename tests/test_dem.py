@@ -41,7 +41,12 @@ def test_geographic_dem_is_reprojected_to_its_utm_zone_and_voids_filled():
     assert dem.crs_name == "EPSG:32632"  # 8-9 deg E, northern hemisphere
     assert 60 < dem.dx < 100 and dem.dx == dem.dy
     assert dem.voids.n_void > 0 and dem.voids.n_remaining == 0
-    assert np.isfinite(dem.z).all()
+    # the UTM grid's corners beyond the tile hold no terrain; every cell inside it has a height
+    # (the tile's own voids on its edges, up to 386 cells, are holes, filled: they run along
+    # the edge for 12 cells at most)
+    assert dem.voids.n_outside > 0
+    lon, lat = _cells_lonlat(dem)
+    assert np.isfinite(dem.z[(lon > 8.02) & (lon < 8.98) & (lat > 46.02) & (lat < 46.98)]).all()
     assert 150 < np.nanmin(dem.z) and np.nanmax(dem.z) < 4_300
 
 
@@ -83,9 +88,9 @@ def test_unreadable_and_missing_files(tmp_path):
 def test_large_voids_stay_masked_and_points_in_them_are_refused():
     z = np.full((50, 50), 100.0)
     z[10:40, 10:40] = np.nan
-    from skyfix.dem import _fill_voids
+    from skyfix.voids import fill_voids
 
-    rep = _fill_voids(z, max_cells=5)
+    rep = fill_voids(z, max_cells=5)
     assert rep.n_void == 900 and 0 < rep.n_filled < 900 and rep.n_remaining == 900 - rep.n_filled
     dem = Dem.from_array(z, 10.0)
     with pytest.raises(OutsideDemError, match="void"):
@@ -152,8 +157,30 @@ def _footprint_area_m2(crs_wkt, west, south, east, north, n=200):
 
 
 def _dem_area_m2(dem):
-    xmin, ymin, xmax, ymax = dem.bounds
-    return (xmax - xmin) * (ymax - ymin)
+    """Area [m2] of the cells that hold a height."""
+    return float(np.isfinite(dem.z).sum()) * dem.dx * dem.dy
+
+
+def _cells_lonlat(dem):
+    """lon, lat [deg] of every cell centre (pyproj), shaped as the grid."""
+    from pyproj import CRS, Transformer
+
+    rows, cols = np.mgrid[0:dem.z.shape[0], 0:dem.z.shape[1]]
+    to_ll = Transformer.from_crs(CRS.from_wkt(dem.crs_wkt), "EPSG:4326", always_xy=True)
+    return to_ll.transform(*dem.colrow_to_xy(cols, rows))
+
+
+def _heights_only_on(dem, west, south, east, north, inset, tol=0.0):
+    """Every cell with a height lies on the lon/lat box (no height invented beyond the source; to
+    ``tol`` [deg], GDAL's warper placing its samples to 1/8 of a source cell), and every cell
+    ``inset`` [deg] inside it has one (none of the source lost)."""
+    lon, lat = _cells_lonlat(dem)
+    has = np.isfinite(dem.z)
+    on = (lon >= west - tol) & (lon <= east + tol) & (lat >= south - tol) & (lat <= north + tol)
+    deep = (lon > west + inset) & (lon < east - inset) & (lat > south + inset) & (lat < north - inset)
+    assert on[has].all() and has[deep].all()
+    # cropped to the footprint's rectangle: every edge row and column holds terrain
+    assert has[0].any() and has[-1].any() and has[:, 0].any() and has[:, -1].any()
 
 
 def test_voids_of_a_geographic_dem_never_shrink_it_when_reprojected(tmp_path):
@@ -171,10 +198,11 @@ def test_voids_of_a_geographic_dem_never_shrink_it_when_reprojected(tmp_path):
     path, _ = _geographic_tile(tmp_path, lon0, lat0, size, step, voids)
     dem = load_dem(path)
     assert dem.crs_name == "EPSG:32632"
-    assert dem.voids.n_void > 0.1 * dem.z.size and dem.voids.n_remaining == 0
-    assert np.isfinite(dem.z).all()
-    # The largest north-up rectangle in UTM 32 loses only the thin wedges of the grid's rotation.
-    assert _dem_area_m2(dem) > 0.97 * _footprint_area_m2(dem.crs_wkt, lon0, lat0, lon0 + size, lat0 + size)
+    assert dem.voids.n_void > 0.07 * dem.z.size and dem.voids.n_remaining == 0
+    _heights_only_on(dem, lon0, lat0, lon0 + size, lat0 + size, 1.5 * step, step / 8)
+    # Nothing of the tile is lost: only the thin wedges of the grid's rotation are no terrain.
+    area = _footprint_area_m2(dem.crs_wkt, lon0, lat0, lon0 + size, lat0 + size)
+    assert 0.99 * area < _dem_area_m2(dem) < 1.01 * area
     to_xy = Transformer.from_crs("EPSG:4326", CRS.from_wkt(dem.crs_wkt), always_xy=True)
     # In the void band, 4.5 source cells (290 m) from the west edge, beyond the 140 m wedge the
     # meridian's tilt costs there: still on the DEM.
@@ -200,9 +228,11 @@ def test_voids_of_a_geographic_dem_never_shrink_it_when_reprojected(tmp_path):
     assert np.isfinite(err_band).all() and np.abs(err_band).max() < 25.0
 
 
-def test_reprojection_wedges_are_cropped_without_inventing_heights(tmp_path):
-    """Far from the UTM central meridian the tile is rotated in the grid (2.6 deg at 12 E, 60 N):
-    the empty wedges around it go, every kept cell lies on the source, and nothing is filled."""
+def test_reprojection_wedges_are_no_terrain_and_no_heights_invented(tmp_path):
+    """Far from the UTM central meridian the tile is rotated in the grid (2.6 deg at 12 E, 60 N).
+    The empty wedges around it are no terrain (NaN), never filled; all of the tile is kept (the
+    largest rectangle inside it kept 91 % here and 70 % of the Sierra DEM, whose skylines then
+    ended kilometres short of its far ridges)."""
     from pyproj import CRS, Transformer
     from rasterio.warp import calculate_default_transform
 
@@ -210,36 +240,41 @@ def test_reprojection_wedges_are_cropped_without_inventing_heights(tmp_path):
     path, src_transform = _geographic_tile(tmp_path, lon0, lat0, size, step)
     dem = load_dem(path)
     assert dem.crs_name == "EPSG:32632"
-    assert dem.voids.n_void == 0 and np.isfinite(dem.z).all()
-    # Cropped: smaller than the reprojection's full (wedged) grid ...
+    assert dem.voids.n_void == 0 and dem.voids.n_outside > 0.05 * dem.z.size
+    assert "around the data (no terrain)" in str(dem.voids)
+    # no larger than the reprojection's full grid ...
     _, w, h = calculate_default_transform("EPSG:4326", dem.crs_wkt, 180, 180, lon0, lat0,
                                           lon0 + size, lat0 + size, resolution=dem.dx)
-    assert dem.z.shape[0] < h and dem.z.shape[1] < w
-    # ... every cell centre on the source raster (checked by pyproj) ...
+    assert dem.z.shape[0] <= h and dem.z.shape[1] <= w
+    # ... heights on the source only (checked by pyproj) and all of it
+    _heights_only_on(dem, lon0, lat0, lon0 + size, lat0 + size, 0.75 * step, step / 8)
+    area = _footprint_area_m2(dem.crs_wkt, lon0, lat0, lon0 + size, lat0 + size)
+    assert 0.99 * area < _dem_area_m2(dem) < 1.01 * area
     to_ll = Transformer.from_crs(CRS.from_wkt(dem.crs_wkt), "EPSG:4326", always_xy=True)
     ny, nx = dem.z.shape
-    rows, cols = np.r_[np.zeros(nx), np.full(nx, ny - 1), np.arange(ny), np.arange(ny)], \
-        np.r_[np.arange(nx), np.arange(nx), np.zeros(ny), np.full(ny, nx - 1)]
-    lon, lat = to_ll.transform(*dem.colrow_to_xy(cols, rows))
-    assert (lon >= lon0).all() and (lon <= lon0 + size).all()
-    assert (lat >= lat0).all() and (lat <= lat0 + size).all()
-    # ... and nothing more than the wedges lost: the meridians lean by the 2.6 deg convergence,
-    # so 1.5 km of the tile's 16.7 km width is wedge (9 %).
-    assert _dem_area_m2(dem) > 0.87 * _footprint_area_m2(dem.crs_wkt, lon0, lat0, lon0 + size, lat0 + size)
     lon_c, lat_c = to_ll.transform(*dem.colrow_to_xy(nx // 2, ny // 2))
     assert dem.z[ny // 2, nx // 2] == pytest.approx(_lonlat_plane(lon_c, lat_c, lon0, lat0), abs=0.5)
+    # a position in a wedge has no height, and says so
+    with pytest.raises(OutsideDemError, match="no height"):
+        dem.require_inside(*dem.colrow_to_xy(0, 0))
+    # the max pyramid ignores the wedges: its top is the tile's highest height
+    assert dem.pyramid[-1].max() == pytest.approx(np.nanmax(dem.z))
 
 
-def test_a_target_crs_rotated_against_the_dem_says_how_much_is_kept(tmp_path, caplog):
-    """An oblique Mercator whose grid is turned 45 deg leaves room for a north-up rectangle of only
-    a / (2 b) = 35 % of a 15.4 x 22.2 km tile: allowed, but said aloud."""
+def test_a_target_crs_rotated_against_the_dem_keeps_all_of_it(tmp_path, caplog):
+    """An oblique Mercator whose grid is turned 45 deg: the 15.4 x 22.2 km tile fills only
+    2 a b / (a + b)**2 = 48 % of its north-up rectangle; the rest is no terrain, and all of the
+    tile is kept (the largest rectangle inside it was 35 %)."""
     path, _ = _geographic_tile(tmp_path, 8.0, 46.0, 0.2, 1 / 1200)
     rotated = ("+proj=omerc +lat_0=46.1 +lonc=8.1 +alpha=45 +gamma=0 +k=1 +x_0=0 +y_0=0 "
                "+ellps=WGS84 +units=m")
-    with caplog.at_level("WARNING", logger="skyfix.dem"):
+    with caplog.at_level("INFO", logger="skyfix.dem"):
         dem = load_dem(path, crs=rotated)
-    assert "35.2 % of the source's footprint" in caplog.text
-    assert dem.voids.n_void == 0 and np.isfinite(dem.z).all()
+    share = float(caplog.text.split("cells, ")[1].split(" %")[0])
+    assert 50 < share < 54
+    assert dem.voids.n_void == 0 and dem.voids.n_outside == pytest.approx(share / 100 * dem.z.size, rel=0.01)
+    area = _footprint_area_m2(dem.crs_wkt, 8.0, 46.0, 8.2, 46.2)
+    assert 0.99 * area < _dem_area_m2(dem) < 1.01 * area
 
 
 def test_shared_alps_tile_keeps_its_whole_degree():
@@ -311,15 +346,21 @@ def test_a_distorted_earth_dem_is_read_into_its_utm_zone(caplog):
     assert "turns directions by up to 0.56 deg" in caplog.text
     assert "reprojected to EPSG:32611" in caplog.text and "gdalwarp -t_srs EPSG:32611 -te" in caplog.text
     rng = np.random.default_rng(3)
-    i = rng.integers(0, dem.z.shape[0], 3000)
-    j = rng.integers(0, dem.z.shape[1], 3000)
+    i, j = np.nonzero(np.isfinite(dem.z))  # the grid's corners beyond the Albers square: no terrain
+    k = rng.integers(0, i.size, 3000)
+    i, j = i[k], j[k]
     x, y = dem.x0 + j * dem.dx, dem.y0 - i * dem.dy
     with rasterio.open(path) as src:
         z, t = src.read(1).astype(float), src.transform
         ax, ay = Transformer.from_crs("EPSG:32611", src.crs.to_wkt(), always_xy=True).transform(x, y)
     col, row = ~t * (ax, ay)
-    ref = map_coordinates(z, [np.asarray(row) - 0.5, np.asarray(col) - 0.5], order=1)
-    err = np.abs(dem.z[i, j] - ref)
+    r, c = np.asarray(row) - 0.5, np.asarray(col) - 0.5
+    ref = map_coordinates(z, [r, c], order=1)
+    # on the source's outer half-cell the reference has no second sample to interpolate with
+    inner = (r >= 0) & (r <= z.shape[0] - 1) & (c >= 0) & (c <= z.shape[1] - 1)
+    assert inner.mean() > 0.99
+    err = np.abs(dem.z[i, j] - ref)[inner]
+    i, j, ref = i[inner], j[inner], ref[inner]
     assert np.median(err) < 0.15 and np.percentile(err, 99) < 1.5 and err.max() < 5.0
     assert abs(np.mean(dem.z[i, j] - ref)) < 0.05  # no shift, no bias: only the crests smoothed
 
@@ -412,10 +453,10 @@ def test_a_dem_too_wide_for_one_metric_crs_is_refused(tmp_path):
 
 
 def test_the_advised_gdalwarp_writes_the_grid_read(tmp_path, caplog):
-    """The warning's gdalwarp command (-te, -tr, bilinear: done here with rasterio, GDAL's warper)
-    writes the grid skyfix reads, which then loads with no reprojection and no voids; a
-    plain `gdalwarp -t_srs` kept the empty wedges around the rotated footprint, 30 % of the grid,
-    and the void filling made up terrain in 344,000 of their cells."""
+    """The warning's gdalwarp command (-te, -tr, bilinear, no-data wedges: done here with rasterio,
+    GDAL's warper) writes the grid skyfix reads, which then loads with no reprojection, its wedges
+    no terrain again (a raster's no-data collar): a plain `gdalwarp -t_srs` fills them with 0, and
+    the void filling had made up terrain in 344,000 of their cells."""
     import re
 
     import rasterio
@@ -425,24 +466,100 @@ def test_the_advised_gdalwarp_writes_the_grid_read(tmp_path, caplog):
     path = shared_dem_path("sierra_nevada_30m")
     with caplog.at_level("WARNING", logger="skyfix.dem"):
         dem = load_dem(path)
-    m = re.search(r"gdalwarp -t_srs (\S+) -te (\S+) (\S+) (\S+) (\S+) -tr (\S+) (\S+) -r bilinear",
-                  caplog.text)
-    crs, (x0, y0, x1, y1, rx, ry) = m.group(1), map(float, m.groups()[1:])
+    m = re.search(r"gdalwarp -t_srs (\S+) -te (\S+) (\S+) (\S+) (\S+) -tr (\S+) (\S+) -r bilinear "
+                  r"-ot Float32 -dstnodata (\S+) ", caplog.text)
+    crs, (x0, y0, x1, y1, rx, ry, nodata) = m.group(1), map(float, m.groups()[1:])
     w, h = round((x1 - x0) / rx), round((y1 - y0) / ry)
-    out = np.full((h, w), np.nan, np.float32)
+    out = np.full((h, w), nodata, np.float32)
     with rasterio.open(path) as src:
         reproject(rasterio.band(src, 1), out, dst_transform=from_origin(x0, y1, rx, ry),
-                  dst_crs=crs, resampling=Resampling.bilinear, dst_nodata=np.nan)
+                  dst_crs=crs, resampling=Resampling.bilinear, dst_nodata=nodata)
         profile = dict(driver="GTiff", width=w, height=h, count=1, dtype="float32", crs=crs,
-                       transform=from_origin(x0, y1, rx, ry), nodata=np.nan)
+                       transform=from_origin(x0, y1, rx, ry), nodata=nodata)
     with rasterio.open(tmp_path / "utm.tif", "w", **profile) as dst:
         dst.write(out, 1)
     caplog.clear()
     with caplog.at_level("INFO", logger="skyfix.dem"):
         again = load_dem(tmp_path / "utm.tif")
-    assert "reprojected" not in caplog.text and again.voids.n_void == 0
+    assert "reprojected" not in caplog.text
     assert again.z.shape == dem.z.shape and again.bounds == pytest.approx(dem.bounds, abs=1e-3)
-    # the same grid; heights as GDAL's warper gives them, which widens its bilinear kernel by
-    # each window's scale (measured: median 0.25 m, p99 1.9 m apart, on crests up to 13 m)
-    d = np.abs(again.z - dem.z)
-    assert np.median(d) < 0.5 and np.percentile(d, 99) < 3.0 and abs(np.mean(again.z - dem.z)) < 0.1
+    # the same cells hold terrain: the wedges (29 % of the grid) none; the voids filled are the
+    # staircase of the footprint's rasterised edge inside the hull of the heights, a cell deep
+    import cv2
+
+    assert again.voids.n_outside > 0.25 * dem.z.size and again.voids.n_void < 0.002 * dem.z.size
+    has, had = np.isfinite(again.z), np.isfinite(dem.z)
+    next_to = cv2.dilate(had.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    assert next_to[has].all() and (had & ~has).sum() < 0.001 * dem.z.size
+    both = has & had
+    # ... with heights as GDAL's warper gives them, which widens its bilinear kernel by each
+    # window's scale (measured: median 0.25 m, p99 1.9 m apart, on crests up to 13 m)
+    d = np.abs(again.z - dem.z)[both]
+    assert np.median(d) < 0.5 and np.percentile(d, 99) < 3.0 and abs(np.mean((again.z - dem.z)[both])) < 0.1
+
+
+def _strip_with_collar(n=200):
+    """A 30-deg rotated strip of heights inside a no-data collar (as a map-projected HiRISE DTM
+    is), with a 6 x 6 hole inside the strip: (z, in_strip mask)."""
+    rows, cols = np.mgrid[0:n, 0:n].astype(float)
+    u = (cols - n / 2) * np.cos(np.radians(30)) + (rows - n / 2) * np.sin(np.radians(30))
+    v = -(cols - n / 2) * np.sin(np.radians(30)) + (rows - n / 2) * np.cos(np.radians(30))
+    strip = (np.abs(u) < 0.45 * n) & (np.abs(v) < 0.2 * n)
+    z = np.where(strip, 1000.0 + 2.0 * cols + 1.0 * rows, np.nan).astype(np.float32)
+    z[97:103, 97:103] = np.nan
+    return z, strip
+
+
+def test_a_rasters_no_data_collar_is_no_terrain_and_its_holes_are_filled(tmp_path):
+    """The no-data around a rotated strip used to be filled out to 100 cells from the strip: a ramp
+    of made-up terrain on every side. Outside the hull of the heights it stays no terrain; the
+    hole inside is filled, with the plane's heights."""
+    from rasterio.transform import from_origin
+
+    z, strip = _strip_with_collar()
+    path = _write_tif(tmp_path / "strip.tif", z, from_origin(500_000, 4_000_000, 1, 1), "EPSG:32611",
+                      -3.4028234663852886e38)
+    raw = z.copy()
+    raw[~np.isfinite(raw)] = -3.4028234663852886e38
+    with __import__("rasterio").open(path, "r+") as dst:
+        dst.write(raw, 1)
+    dem = load_dem(path)
+    assert dem.z.shape == z.shape  # not reprojected: the same grid
+    import cv2
+
+    has = np.isfinite(dem.z)
+    # all of the strip, and beyond it only the staircase of its rasterised edge inside the hull
+    # of the heights, a cell deep (not 100)
+    next_to = cv2.dilate(strip.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    assert has[strip].all() and next_to[has].all()
+    assert dem.voids.n_remaining == 0 and dem.voids.n_outside > 0.95 * (~strip).sum()
+    rows, cols = np.mgrid[97:103, 97:103]
+    np.testing.assert_allclose(dem.z[97:103, 97:103], 1000.0 + 2.0 * cols + rows, atol=6.0)
+
+
+def test_a_source_collar_stays_outside_once_reprojected(tmp_path):
+    """The same strip on a lon/lat grid, reprojected: its collar and the reprojection's wedges are
+    both no terrain, and the grid is cropped to the strip's rectangle, not the raster's."""
+    from rasterio.transform import from_origin
+
+    z, strip = _strip_with_collar()
+    step = 1 / 1200
+    path = _write_tif(tmp_path / "strip_ll.tif", z, from_origin(8.0, 46.2, step, step), "EPSG:4326",
+                      np.nan)
+    dem = load_dem(path)
+    assert dem.voids.n_void >= 36 and dem.voids.n_remaining == 0
+    lon, lat = _cells_lonlat(dem)
+    col = (lon - 8.0) / step - 0.5
+    row = (46.2 - lat) / step - 0.5
+    has = np.isfinite(dem.z)
+    # every height lies on the strip (to a cell: the strip's rasterised edge), the strip is covered
+    ri, ci = np.clip(np.round(row).astype(int), 0, 199), np.clip(np.round(col).astype(int), 0, 199)
+    import cv2
+
+    near_strip = cv2.dilate(strip.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    assert near_strip[ri[has], ci[has]].all()
+    core = cv2.erode(strip.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    inside = (row > 0) & (row < 199) & (col > 0) & (col < 199)
+    assert has[inside & core[ri, ci]].all()
+    # cropped to the strip, which spans 80 % of the raster's 200 rows (18.5 km north to south)
+    assert 0.78 * 18_530 < dem.z.shape[0] * dem.dy < 0.85 * 18_530

@@ -2,7 +2,9 @@
 
 Grid convention: ``z[i, j]`` is the height [m] at the centre of pixel (row i, column j), at
 ``x = x0 + j * dx`` and ``y = y0 - i * dy`` (row 0 is north). Heights between pixel centres are
-bilinear; the usable area is the hull of pixel centres, :attr:`Dem.bounds`.
+bilinear; the usable area is the hull of pixel centres, :attr:`Dem.bounds`, where heights are
+known. NaN is no height: a void left unfilled, or a cell around the data (a reprojection's wedges,
+a raster's no-data collar): rays see no terrain there, and no position stands there.
 """
 
 from __future__ import annotations
@@ -10,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import logging
 import math
-from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
@@ -18,8 +19,9 @@ import numpy as np
 
 from .errors import DemError, OutsideDemError, ParameterError
 from .planets import EARTH, planet_from_crs
-from .workcrs import (MAX_SCALE_ERROR, direction_error_deg, earth_work_crs, geographic_bounds,
-                      local_tm_crs, scale_error, source_footprint, trim_to_footprint)
+from .voids import VoidReport, collar_cells, fill_voids
+from .workcrs import (MAX_SCALE_ERROR, crop_to_footprint, direction_error_deg, earth_work_crs,
+                      geographic_bounds, local_tm_crs, scale_error, source_footprint)
 
 log = logging.getLogger(__name__)
 
@@ -29,22 +31,6 @@ log = logging.getLogger(__name__)
 MAX_WORK_SCALE_ERROR = 0.05
 #: [m] largest height from the datum a DEM may hold (beyond: a fill value or a unit mistake)
 MAX_ABS_HEIGHT_M = 100_000.0
-
-
-@dataclass(frozen=True)
-class VoidReport:
-    """What happened to no-data cells on load (counts in cells)."""
-
-    n_void: int = 0
-    n_filled: int = 0
-    n_remaining: int = 0
-    fraction: float = 0.0
-
-    def __str__(self) -> str:
-        if not self.n_void:
-            return "no voids"
-        return (f"{self.n_void} void cells ({100 * self.fraction:.1f} %): {self.n_filled} filled, "
-                f"{self.n_remaining} left masked")
 
 
 class Dem:
@@ -136,7 +122,8 @@ class Dem:
         h = self.height_at(x, y)
         if not np.all(np.isfinite(h)):
             k = int(np.flatnonzero(~np.isfinite(h))[0])
-            raise OutsideDemError(f"{what} ({x[k]:.1f}, {y[k]:.1f}) falls in a DEM void (no height there)")
+            raise OutsideDemError(f"{what} ({x[k]:.1f}, {y[k]:.1f}) has no height on the DEM: it "
+                                 "falls in a void or outside the DEM's data")
 
     # --- far-field acceleration ------------------------------------------------------------------
     @cached_property
@@ -225,10 +212,11 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         The body (:attr:`Dem.body`) comes from the CRS's datum. Heights are metres: a band scale
         and offset are applied; a band whose unit says otherwise (feet, km) is refused
     resolution_m : [m] pixel size when reprojecting; default about the native size. A reprojected
-        grid is cropped to a north-up rectangle inside the source raster's footprint (its own
-        no-data cells count as inside: they are voids, filled below, never a reason to crop)
+        grid keeps the north-up rectangle around the source raster's footprint, the cells outside
+        it no-data (NaN, no terrain: :attr:`Dem.voids` counts them ``n_outside``)
     fill_max_cells : [cells] voids are filled by inverse-distance interpolation when a valid height
-        lies within this many cells; larger voids stay masked (NaN) and are reported
+        lies within this many cells; larger voids stay masked (NaN) and are reported, as does a
+        raster's no-data collar (the voids outside the convex hull of its heights)
     """
     import rasterio
     from pyproj import CRS
@@ -347,27 +335,37 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
             reproject(np.where(np.isfinite(z), z, np.nan), out, src_transform=transform,
                       src_crs=src.crs, dst_transform=dst_transform, dst_crs=dst_crs.to_wkt(),
                       resampling=Resampling.bilinear, src_nodata=np.nan, dst_nodata=np.nan)
-            # Trim by where the source raster lies, not by where heights are: the DEM's own voids
+            # Crop by where the source raster lies, not by where heights are: the DEM's own voids
             # (7 % of an SRTM tile, some along its edges) are holes to fill, not border to cut.
             footprint = source_footprint(src.crs, transform, z.shape, dst_crs.to_wkt(),
                                          dst_transform, (h, w))
-            z, dst_transform, kept = trim_to_footprint(out, footprint, dst_transform, path.name)
-            # a rotated target CRS can keep much less than the source covers: said, not silent
-            (log.warning if kept < 0.8 else log.info)(
-                "%s: the reprojected DEM is cropped to %d x %d cells, %.1f %% of the source's "
-                "footprint", path.name, z.shape[1], z.shape[0], 100 * kept)
+            collar = collar_cells(~np.isfinite(z))
+            if collar.any():  # the source's own no-data collar is no more terrain than the wedges
+                moved = np.zeros((h, w), np.uint8)
+                reproject(collar.astype(np.uint8), moved, src_transform=transform, src_crs=src.crs,
+                          dst_transform=dst_transform, dst_crs=dst_crs.to_wkt(), src_nodata=None,
+                          dst_nodata=0, resampling=Resampling.nearest)
+                footprint &= moved == 0
+            z, footprint, dst_transform = crop_to_footprint(out, footprint, dst_transform, path.name)
+            log.info("%s: reprojected into %d x %d cells, %.1f %% of them around the source's "
+                     "data (no terrain there)", path.name, z.shape[1], z.shape[0],
+                     100 * (1 - footprint.mean()))
+            outside = ~footprint
             transform = dst_transform
             log.info("reprojected %s from %s to %s", path.name, _crs_name(src_crs), _crs_name(dst_crs))
             if advise:
-                # the very grid read here: a plain gdalwarp keeps the empty wedges around the
-                # rotated footprint, which the void filling would then fill with made-up terrain
+                # the very grid read here, its wedges no-data (not 0, gdalwarp's default fill for a
+                # source without nodata); read back, they are no terrain again (:func:`~skyfix.voids.collar_cells`)
                 xmin, ymax = transform.c, transform.f
                 xmax, ymin = xmin + z.shape[1] * transform.a, ymax + z.shape[0] * transform.e
                 log.warning("%s: to read this grid without reprojecting it each time, write it once: "
-                            "gdalwarp -t_srs %s -te %.3f %.3f %.3f %.3f -tr %.6f %.6f -r bilinear %s "
-                            "OUT.tif", path.name, _crs_name(dst_crs) or "'" + dst_crs.to_proj4() + "'",
+                            "gdalwarp -t_srs %s -te %.3f %.3f %.3f %.3f -tr %.6f %.6f -r bilinear "
+                            "-ot Float32 -dstnodata -99999 %s OUT.tif", path.name,
+                            _crs_name(dst_crs) or "'" + dst_crs.to_proj4() + "'",
                             xmin, ymin, xmax, ymax, transform.a, -transform.e, path.name)
-    voids = _fill_voids(z, fill_max_cells)
+        else:
+            outside = None
+    voids = fill_voids(z, fill_max_cells, outside)
     dx, dy = transform.a, -transform.e
     dem = Dem(z, transform.c + dx / 2, transform.f - dy / 2, dx, dy, dst_crs.to_wkt(),
               _crs_name(dst_crs), source=str(path), checksum=file_checksum(path), voids=voids,
@@ -380,37 +378,6 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                     "than %.1f %%): horizons are distorted by as much", path.name,
                     dem.crs_name or dst_crs.name, 100 * dem.scale_error, 100 * MAX_SCALE_ERROR)
     return dem
-
-
-def _fill_voids(z: np.ndarray, max_cells: int) -> VoidReport:
-    """Fill NaN voids in place where a valid height is within ``max_cells``; report counts."""
-    void = ~np.isfinite(z)
-    n_void = int(void.sum())
-    if n_void == 0:
-        return VoidReport()
-    if n_void == void.size:
-        raise DemError("the DEM holds no valid heights at all")
-    n_filled = 0
-    if max_cells > 0:
-        from rasterio.fill import fillnodata
-
-        filled = fillnodata(np.where(void, 0, z).astype(np.float32), mask=(~void).astype(np.uint8),
-                            max_search_distance=float(max_cells), smoothing_iterations=0)
-        # fillnodata leaves cells it could not reach untouched (0 here): keep them NaN.
-        reach = _within_distance(~void, max_cells)
-        fill_here = void & reach
-        z[fill_here] = filled[fill_here]
-        n_filled = int(fill_here.sum())
-    rep = VoidReport(n_void, n_filled, n_void - n_filled, n_void / z.size)
-    log.info("DEM voids: %s", rep)
-    return rep
-
-
-def _within_distance(valid: np.ndarray, max_cells: int) -> np.ndarray:
-    from .nearest import nearest_valid
-
-    dist2, _, _ = nearest_valid(valid)
-    return dist2 <= float(max_cells) ** 2  # squares of whole cells: exact in float64
 
 
 def write_dem(path, dem: Dem) -> Path:

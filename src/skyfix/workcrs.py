@@ -1,6 +1,6 @@
 """The work CRS (``conventions.md``, "World frame"): a metric projected CRS on the DEM's own body in
 which distances are true to within 0.1 % over the work area; and, for a DEM reprojected into it,
-the crop to where the source raster lies (:func:`source_footprint`, :func:`trim_to_footprint`).
+the crop to where the source raster lies (:func:`source_footprint`, :func:`crop_to_footprint`).
 
 A horizon is made of distances, heights and directions: a projection that stretches distances
 tilts every line of sight (an equirectangular Mars map with its standard parallel at the equator
@@ -142,44 +142,28 @@ def source_footprint(src_crs, src_transform, src_shape, dst_crs, dst_transform, 
     return fp.astype(bool)
 
 
-def trim_to_footprint(z: np.ndarray, footprint: np.ndarray, transform, name: str = "DEM"):
-    """Crop a reprojected grid to a north-up rectangle lying wholly inside the source footprint.
+def crop_to_footprint(z: np.ndarray, footprint: np.ndarray, transform, name: str = "DEM"):
+    """Crop a reprojected grid to the north-up rectangle that bounds the source footprint, every
+    cell outside the footprint set to NaN: no terrain there, never a void to fill.
 
-    A reprojection turns the source's rectangle into a rotated or curved shape and leaves empty
-    wedges around it; the crop removes them. Only ``footprint`` decides the crop, never NaN in
-    ``z``: voids inside the footprint stay in the grid, to be filled. Each step drops the edge row or
-    column with the largest share outside the footprint, until every edge line lies fully inside
-    (no height is invented beyond the source). Returns the cropped copy of ``z``, its transform and
-    the share of the footprint kept.
+    A reprojection turns the source's rectangle into a rotated or curved shape inside a larger
+    grid. Only the rows and columns that hold no source cell go; the wedges in the corners stay,
+    marked, so that rays still reach every bit of the source's terrain (the largest rectangle
+    inside the footprint kept 70 % of the Sierra DEM read into UTM, and its skylines ended 12.7-13.7
+    km out where the terrain goes on to 16.5 km). Only ``footprint`` decides, never NaN in ``z``:
+    voids inside the footprint stay, to be filled. Returns the cropped copy of ``z``, the cropped
+    footprint and the grid's transform.
     """
     from rasterio.transform import Affine
 
     from .errors import DemError
 
-    fp = footprint
-    r0, r1, c0, c1 = 0, fp.shape[0], 0, fp.shape[1]
-    for _ in range(sum(fp.shape)):
-        if r1 - r0 < 2 or c1 - c0 < 2:
-            break
-        edges = {
-            "top": fp[r0, c0:c1].mean(), "bottom": fp[r1 - 1, c0:c1].mean(),
-            "left": fp[r0:r1, c0].mean(), "right": fp[r0:r1, c1 - 1].mean(),
-        }
-        side = min(edges, key=edges.get)
-        if edges[side] == 1.0:
-            break
-        if side == "top":
-            r0 += 1
-        elif side == "bottom":
-            r1 -= 1
-        elif side == "left":
-            c0 += 1
-        else:
-            c1 -= 1
-    if r1 - r0 < 2 or c1 - c0 < 2 or not fp[r0:r1, c0:c1].all():
-        raise DemError(f"{name}: once reprojected, no north-up rectangle of at least 2 x 2 cells lies "
-                       "wholly inside the DEM (its footprint in the target CRS is too thin, too rotated "
-                       "or not convex): pass --crs with a CRS whose north is close to the DEM's")
-    kept = (r1 - r0) * (c1 - c0) / max(int(fp.sum()), 1)
-    t = transform @ Affine.translation(c0, r0)
-    return z[r0:r1, c0:c1].copy(), t, kept
+    rows = np.flatnonzero(footprint.any(axis=1))
+    cols = np.flatnonzero(footprint.any(axis=0))
+    if rows.size < 2 or cols.size < 2:
+        raise DemError(f"{name}: once reprojected, it covers less than 2 x 2 cells: pass --crs with a "
+                       "metric CRS in which the DEM keeps its extent (e.g. its UTM zone)")
+    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    fp = footprint[r0:r1, c0:c1].copy()
+    out = np.where(fp, z[r0:r1, c0:c1], np.nan)
+    return out, fp, transform @ Affine.translation(c0, r0)

@@ -48,7 +48,18 @@ def plan_path(dem, length_m: float, spacing_m: float, seed: int, *, margin_m: fl
         raise ParameterError("the DEM is too small for this traverse's margin and spacing")
     rng = np.random.default_rng(seed)
     n = int(round(length_m / spacing_m)) + 1
+    # a reprojected DEM's corners hold no terrain: every stop stands on a height
+    def on_dem(q):
+        return bool(np.all(q >= lo) and np.all(q <= hi) and np.isfinite(dem.height_at(q[0], q[1])))
+
     p = rng.uniform(lo, hi)
+    for _try in range(1000):
+        if on_dem(p):
+            break
+        p = rng.uniform(lo, hi)
+    else:
+        raise ParameterError("found no place with a height to start the traverse: the DEM is mostly "
+                             "void or around its data")
     h = rng.uniform(0.0, 360.0)
     xs, ys, hs, steps = [p[0]], [p[1]], [h], []
     centre = (lo + hi) / 2
@@ -57,7 +68,7 @@ def plan_path(dem, length_m: float, spacing_m: float, seed: int, *, margin_m: fl
         for _try in range(36):
             h2 = h + turn
             q = p + spacing_m * np.array([math.sin(math.radians(h2)), math.cos(math.radians(h2))])
-            if np.all(q >= lo) and np.all(q <= hi):
+            if on_dem(q):
                 break
             # steer towards the centre: the turn that heads there, plus a little noise
             to_c = math.degrees(math.atan2(centre[0] - p[0], centre[1] - p[1]))
