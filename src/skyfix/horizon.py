@@ -373,12 +373,18 @@ def reference_horizon(dem: Dem, x: float, y: float, *, camera_height_m: float = 
         t = np.sort(t[(t >= T_MIN_M) & (t <= t_end)])
         u = np.clip(u0 + du * t, 0, nx - 1)
         v = np.clip(v0 + dv * t, 0, ny - 1)
-        j = np.minimum(np.floor(u).astype(int), nx - 2)
-        i = np.minimum(np.floor(v).astype(int), ny - 2)
-        fu, fv = u - j, v - i
         zz = dem.z
-        h = (zz[i, j] * (1 - fu) * (1 - fv) + zz[i, j + 1] * fu * (1 - fv)
-             + zz[i + 1, j] * (1 - fu) * fv + zz[i + 1, j + 1] * fu * fv)
+        h = np.full(t.shape, np.nan)
+        # On a grid line the height is that of either cell beside it: where one of them has a
+        # no-data corner (a void, a reprojection's wedge) the other one's edge is the terrain.
+        # (a crossing lands within rounding of the line, on either side)
+        for ju in (u - 1e-7, u + 1e-7):
+            for iv in (v - 1e-7, v + 1e-7):
+                j = np.clip(np.floor(ju), 0, nx - 2).astype(int)
+                i = np.clip(np.floor(iv), 0, ny - 2).astype(int)
+                fu, fv = u - j, v - i
+                h = np.fmax(h, zz[i, j] * (1 - fu) * (1 - fv) + zz[i, j + 1] * fu * (1 - fv)
+                            + zz[i + 1, j] * (1 - fu) * fv + zz[i + 1, j + 1] * fu * fv)
         ang = np.degrees(np.arctan((h - zc - planet.drop_m(t)) / t))
         if np.any(np.isfinite(ang)):
             elev[b] = np.nanmax(ang)
