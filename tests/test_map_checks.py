@@ -145,6 +145,37 @@ def test_a_database_built_in_another_work_crs_is_refused_even_forced(tmp_path, m
         assert "Rebuild the database" in r.output and "Traceback" not in r.output
 
 
+def test_a_database_built_on_another_reading_of_the_same_dem_is_refused(tmp_path, monkeypatch,
+                                                                      detection_forbidden):
+    """The same DEM file, the same work CRS, another grid: skyfix before 2026-11-28 cropped a
+    reprojected DEM to the largest rectangle inside its footprint and now keeps all of it, so a
+    database built then misses terrain the crop cut. The checksum cannot tell: refused by the grid
+    recorded, --force or not."""
+    import skyfix.stack
+
+    z = _dem().z
+    dem_path = write_dem(tmp_path / "geo_like.tif", Dem.from_array(z, CELL))
+    db_path = tmp_path / "old.zarr"
+
+    def cropped(path, **kw):  # the reading of before: two rows and columns less
+        d = load(path, **kw)
+        return Dem(d.z[1:-1, 1:-1], d.x0 + d.dx, d.y0 - d.dy, d.dx, d.dy, d.crs_wkt, d.crs_name,
+                   source=d.source, checksum=d.checksum, body=d.body)
+
+    load = skyfix.stack.load_dem
+    with monkeypatch.context() as m:
+        m.setattr(skyfix.stack, "load_dem", cropped)
+        build_database(dem_path, db_path, (300, 300, 500, 500), 10, workers=0, progress=False,
+                       azimuth_bins=180, block=8)
+    assert open_database(db_path).attrs["dem"]["shape"] == [z.shape[0] - 2, z.shape[1] - 2]
+    acq = _acquisition(tmp_path)
+    for extra in ((), ("--force",)):
+        r = _run("locate", acq, "--db", db_path, "--dem", dem_path, *extra)
+        assert r.exit_code == 2, r.output
+        assert f"read as a {z.shape[1] - 2} x {z.shape[0] - 2} grid" in r.output, r.output
+        assert "rebuild the database" in r.output and "Traceback" not in r.output
+
+
 def test_a_forced_other_dem_is_said_in_the_fix(tmp_path, files):
     dem_path, other, db_path = files
     prof = tmp_path / "p.json"

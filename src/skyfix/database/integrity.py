@@ -276,9 +276,29 @@ def check_dem_crs(db, dem, db_path, dem_path) -> None:
         return
     built, read = CRS.from_wkt(db.crs_wkt), CRS.from_wkt(dem.crs_wkt)
     if built == read:
+        _check_dem_grid(db, dem, db_path, dem_path)
         return
     raise DatabaseError(
         f"the database {db_path} was built in {db.attrs.get('crs_name') or built.name}, but --dem "
         f"{dem_path} is read in {dem.crs_name or read.name}: its positions would be taken for "
         "another map's. Rebuild the database from this DEM with this skyfix (build-db; bounds in "
         "the DEM's work CRS, which `skyfix info DEM` prints)")
+
+
+def _check_dem_grid(db, dem, db_path, dem_path) -> None:
+    """The very DEM file, read into another grid than the database was built on: skyfix before
+    2026-11-28 cropped a reprojected DEM to the largest rectangle inside its footprint (70 % of
+    the Sierra DEM), and now keeps all of it. The database's skylines then miss the terrain the
+    crop cut, which no later check would notice (the file's checksum is the same)."""
+    rec = db.attrs.get("dem") or {}
+    shape, bounds = rec.get("shape"), rec.get("bounds")
+    if (not shape or not bounds or rec.get("sha256") != getattr(dem, "checksum", None)
+            or not hasattr(dem, "bounds")):
+        return
+    if list(shape) == list(dem.shape) and all(abs(a - b) < 1e-3 for a, b in zip(bounds, dem.bounds)):
+        return
+    raise DatabaseError(
+        f"the database {db_path} was built on {dem_path} read as a {shape[1]} x {shape[0]} grid, "
+        f"which this skyfix reads as {dem.shape[1]} x {dem.shape[0]} (before 2026-11-28 a "
+        "reprojected DEM was cropped to the largest rectangle inside it, and the skylines stored miss "
+        "the terrain cut off): rebuild the database from this DEM with this skyfix (build-db)")
