@@ -1,4 +1,6 @@
-"""``-v`` and ``-q`` mean the same after the subcommand as before it, for every subcommand."""
+"""``-v`` and ``-q`` mean the same after the subcommand as before it, for every subcommand, and
+``-v`` says what ``locate``, ``heading`` and ``detect`` did (candidates, refinement, detection
+coverage) while the default output stays as it was."""
 
 from __future__ import annotations
 
@@ -76,10 +78,21 @@ def test_locate_v_after_the_subcommand_is_v_before_it(scene, tmp_path):
     assert before.exit_code == 0, before.output
     assert _messages(after.stderr) == [m.replace("before.json", "after.json")
                                        for m in _messages(before.stderr)]
+    # what -v adds: the candidates the search kept, where refinement took them, the decision
+    assert "INFO skyfix.pose.locate: database search: " in after.stderr
+    assert re.search(r"refined \([\d.]+, [\d.]+\) -> \(41[12]\.\d, 38[78]\.\d\), moved", after.stderr)
+    assert "confidence" in after.stderr and "before caps" in after.stderr
     plain = _run("locate", *args, "-o", tmp_path / "plain.json")
     assert plain.exit_code == 0 and "INFO" not in plain.stderr and "located:" in plain.stderr
     loud = _run("locate", *args, "-o", tmp_path / "loud.json", "-vvv")  # everyone's debug
     assert loud.exit_code == 0 and "DEBUG rasterio" in loud.stderr, loud.stderr
+
+
+def test_locate_vv_split_around_the_subcommand_is_debug(scene, tmp_path):
+    r = _run("-v", "locate", "--profile", scene["profile"], "--db", scene["db"], "--dem",
+             scene["dem"], "-o", tmp_path / "fix.json", "-v")
+    assert r.exit_code == 0, r.output
+    assert "DEBUG skyfix.pose.locate: confidence features: log_ratio" in r.stderr
 
 
 def test_q_after_the_subcommand_leaves_errors_only(scene, tmp_path):
@@ -89,3 +102,25 @@ def test_q_after_the_subcommand_leaves_errors_only(scene, tmp_path):
     assert r.stderr == "" and (tmp_path / "fix.json").is_file()
     r = _run("detect", tmp_path / "none.png", "-q")
     assert r.exit_code == 2 and "Error:" in r.stderr  # errors still are
+
+
+def test_heading_v_says_what_the_search_saw(scene, tmp_path):
+    r = _run("heading", "--profile", scene["profile"], "--dem", scene["dem"], "--x", 412,
+             "--y", 387, "--heading-prior-deg", 45, "-o", tmp_path / "h.json", "-v")
+    assert r.exit_code == 0, r.output
+    assert re.search(r"heading search at \(412\.0, 387\.0\): grid 45\.0 \+- 10 deg, \d+ of 180 "
+                     r"bins observed", r.stderr), r.stderr
+    assert "INFO skyfix.pose.heading: attitude fit: yaw 40." in r.stderr
+    plain = _run("heading", "--profile", scene["profile"], "--dem", scene["dem"], "--x", 412,
+                 "--y", 387, "--heading-prior-deg", 45, "-o", tmp_path / "h2.json")
+    assert plain.exit_code == 0 and "INFO" not in plain.stderr
+
+
+def test_detect_v_gives_method_coverage_and_time(scene, tmp_path):
+    r = _run("detect", scene["image"], "-o", tmp_path / "s.json", "-v")
+    assert r.exit_code == 0, r.output
+    assert re.search(r"INFO skyfix\.detect\.skyline: photo\.png: dp, 160 x 120 px colour, 100 % of "
+                     r"pixels valid: skyline in 160 of 160 columns, median confidence [\d.]+ "
+                     r"\([\d.]+ s\)", r.stderr), r.stderr
+    plain = _run("detect", scene["image"], "-o", tmp_path / "s2.json")
+    assert plain.exit_code == 0 and "INFO" not in plain.stderr

@@ -27,6 +27,7 @@ The forward model (world horizon -> body-frame profile for an attitude) is :func
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import replace
 
@@ -47,6 +48,8 @@ from .map_error import fit_map_covariance
 from .refine import inside_dem, prior_grid, refine_candidates
 from .scoring import clipped_costs, profile_arrays, render_points, robust_scores
 
+
+log = logging.getLogger(__name__)
 
 #: the most confidence a degenerate search may report (:func:`degenerate_search`)
 DEGENERATE_CAP = 0.45
@@ -172,6 +175,22 @@ def _segment_candidates(db, q, config, known, *, prior_xy=None, prior_radius_m=N
     return out
 
 
+def _log_candidates(where, cands):
+    """-v: the candidates a search kept (x [m], y [m], score, heading [deg]), best first."""
+    log.info("%s: %d candidate%s kept%s", where, len(cands), "s" * (len(cands) != 1),
+             ": " + "; ".join(f"({x:.1f}, {y:.1f}) score {s:.4g} heading {h:.1f}"
+                              for x, y, s, h in cands[:8]) if cands else "")
+
+
+def _log_refined(results):
+    """-v: where each refined candidate went from where it started, and its cost."""
+    for d in results:
+        x0, y0 = d["start"]
+        log.info("refined (%.1f, %.1f) -> (%.1f, %.1f), moved %.1f m: clipped cost %.4f deg^2, "
+                 "heading %.2f deg", x0, y0, d["x"], d["y"], math.hypot(d["x"] - x0, d["y"] - y0),
+                 d["cost"], d["heading"])
+
+
 def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
            prior_pitch_deg: float = 0.0, prior_roll_deg: float = 0.0,
            camera_height_m: float | None = None, planet=None, config: PoseConfig = PoseConfig(),
@@ -235,6 +254,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
             k = len(mres.candidates)
             st.result = f"{k} candidate{'s' * (k != 1)} in distinct basins"
         cands = [(c.x, c.y, c.score, c.heading_deg) for c in mres.candidates]
+        _log_candidates("database search", cands)
         step0 = float(db.spacing_m) / 4.0
         crs_wkt = getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else "")
     else:
@@ -258,6 +278,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
                 cands.append((float(gx[i]), float(gy[i]), float(sc[i]), float(sh[i]) * 360.0 / n))
             if len(cands) >= config.match.top_k:
                 break
+        _log_candidates(f"prior area, {gx.size} points at {step:g} m on the DEM,", cands)
         step0 = step / 4.0
         crs_wkt = dem.crs_wkt
     if not cands:
@@ -275,6 +296,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         with stage(f"  {k} candidate{'s' * (k != 1)} refined on the DEM") as st:
             results = refine_candidates(dem, q, cands[: config.refine_candidates], step0, config, **kw)
             st.result = f"best clipped cost {results[0]['cost']:.4f} deg^2" if results else "none"
+        _log_refined(results)
         rest = list(cands[config.refine_candidates:])
         out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg,
                       model, "locate" if db is not None else "locate_prior")
@@ -283,9 +305,14 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
             known = [(d["x"], d["y"]) for d in results] + [(c[0], c[1]) for c in rest]
             extra = _segment_candidates(db, q, config, known, prior_xy=prior_xy,
                                         prior_radius_m=prior_radius_m)
+            log.info("confidence %.2f, robust rms %.1f x the noise: searched again with each of "
+                     "%d parts of the skyline left out, %d new candidate%s", out["conf"],
+                     math.exp(out["feat"]["log_rms_over_noise"]), config.retry_segments,
+                     len(extra), "s" * (len(extra) != 1))
             if extra:
-                results = sorted(results + refine_candidates(dem, q, extra, step0, config, **kw),
-                                 key=lambda d: d["cost"])
+                more = refine_candidates(dem, q, extra, step0, config, **kw)
+                _log_refined(more)
+                results = sorted(results + more, key=lambda d: d["cost"])
                 out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg,
                               prior_roll_deg, model, "locate")
         fx, fy, heading, pitch, roll = out["x"], out["y"], out["heading"], out["pitch"], out["roll"]
@@ -320,18 +347,26 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
                                    camera_height_m=camera_height_m, planet=planet,
                                    dem_sigma_m=config.map_sigma_m)
         if img is not None:
+            log.info("image-plane solve: yaw %.2f (%+.2f from the profile fit), pitch %.2f, "
+                     "roll %.2f deg", img.yaw_deg, wrap_deg(img.yaw_deg - heading), img.pitch_deg,
+                     img.roll_deg)
             if abs(wrap_deg(img.yaw_deg - heading)) > 1.0:
                 conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)
                 notes.append(f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
                              "heading lies more than 1 deg from the profile fit's")
             heading, pitch, roll = img.yaw_deg, img.pitch_deg, img.roll_deg
             hsig = max(hsig, img.yaw_sigma_deg)
+    log.info("fix (%.1f, %.1f), grid heading %.2f, pitch %.2f, roll %.2f deg; clipped cost %.4f "
+             "deg^2; confidence %.2f before caps", fx, fy, heading, pitch, roll, best_s, conf)
+    log.debug("confidence features: %s", ", ".join(f"{k} {v:.3g}" for k, v in feat.items()))
     degenerate = degenerate_search(db, dem, fx, fy, prior_xy, prior_radius_m,
                                    config.tolerance_m if db is not None else 1.0,
                                    config.grid_step_m)
     if degenerate:
         conf = min(conf, DEGENERATE_CAP)
         notes += [f"confidence capped at {DEGENERATE_CAP}: {r}" for r in degenerate]
+        for r in degenerate:
+            log.info("confidence capped at %s: %s", DEGENERATE_CAP, r)
     if height_gap > 0:
         psig = math.hypot(psig, height_gap)
     if dem is None:
