@@ -59,10 +59,18 @@ MIN_SEARCHED_POSITIONS = 49
 
 def degenerate_search(db, dem, x, y, prior_xy, prior_radius_m, tolerance_m, grid_step_m):
     """Why a search cannot support a confident answer, whatever its scores say (a list of
-    reasons, empty when none): a handful of positions searched, the answer on the edge of the
-    searched area (the truth may lie beyond it), or a grid far coarser than the accuracy asked
-    with no DEM to refine on. Positions [m]."""
+    reasons, empty when none): a handful of positions searched, the answer outside the searched
+    area or on its edge (the truth may lie beyond it), or a grid far coarser than the accuracy
+    asked with no DEM to refine on. Positions [m].
+
+    The refinement on the DEM (:func:`~skyfix.pose.refine.refine_candidates`) is not held inside
+    the searched area: its re-centred grids and its compass search follow the cost wherever the
+    DEM has heights, so a rover standing beyond the database's positions or the prior disc is
+    found where it stands. Such an answer is kept, not clamped to the edge (a clamped position
+    is one the skyline does not support, with a sigma that does not cover its error); it is said
+    to lie outside, and how far, since no rival beyond the edge was ever compared with it."""
     reasons = []
+    outside = []  # (how far beyond [m], the area, how to search it)
     if db is not None:
         xs, ys = np.asarray(db.x_coords, float), np.asarray(db.y_coords, float)
         n = xs.size * ys.size
@@ -82,11 +90,23 @@ def degenerate_search(db, dem, x, y, prior_xy, prior_radius_m, tolerance_m, grid
         lo_x, hi_x, lo_y, hi_y = xs.min(), xs.max(), ys.min(), ys.max()
         edge = min(x - lo_x if xs.size > 1 else np.inf, hi_x - x if xs.size > 1 else np.inf,
                    y - lo_y if ys.size > 1 else np.inf, hi_y - y if ys.size > 1 else np.inf)
+        outside.append((math.hypot(max(lo_x - x, 0.0, x - hi_x), max(lo_y - y, 0.0, y - hi_y)),
+                        f"the database's positions, x {lo_x:.1f}..{hi_x:.1f} and y "
+                        f"{lo_y:.1f}..{hi_y:.1f} m", "a database built over a wider area"))
     else:
         step, edge = float(grid_step_m), np.inf
     if prior_xy is not None and prior_radius_m is not None:
-        edge = min(edge, prior_radius_m - math.hypot(x - prior_xy[0], y - prior_xy[1]))
-    if edge < step:
+        d = math.hypot(x - prior_xy[0], y - prior_xy[1])
+        edge = min(edge, prior_radius_m - d)
+        outside.append((d - prior_radius_m, f"the prior disc of {prior_radius_m:g} m around "
+                        f"({prior_xy[0]:.1f}, {prior_xy[1]:.1f})", "a wider --prior-radius-m"))
+    # beyond every searched position's own half step: no position searched stands for it
+    far = max(outside, default=(0.0, "", ""))
+    if far[0] > step / 2.0:
+        reasons.append(f"the answer lies {far[0]:.1f} m outside the searched area ({far[1]}): "
+                       "refinement on the DEM followed the skyline past its edge, and no rival "
+                       f"beyond the edge was searched; search an area that holds it ({far[2]})")
+    elif edge < step:
         reasons.append(f"the answer lies within one grid step ({step:g} m) of the searched "
                        "area's edge: the rover may be outside it")
     return reasons
