@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from skyfix.database import build_database, open_database
 from skyfix.dem import Dem, write_dem
 from skyfix.formats import write_profile_json
 from skyfix.pose import locate, synthetic_profile
+from skyfix.pose.locate import DEGENERATE_CAP
 
 CELL = 10.0
 
@@ -64,12 +66,61 @@ def test_a_database_of_one_or_two_positions_is_not_confident(tmp_path, files, sp
 
 
 def test_a_fix_on_the_edge_of_the_searched_area_is_not_confident(files):
-    """The rover stands 40 m outside the database's area: the best match is on its edge."""
+    """The rover stands 5 m beyond the database's last column (x 300..500): within half a grid
+    step of it, on its edge."""
+    dem_path, _, db_path = files
+    dem = _dem()
+    fix = locate(_profile(dem, x=505.0, y=450.0), db=open_database(db_path), dem=dem)
+    assert np.hypot(fix.x - 505.0, fix.y - 450.0) < 1.0
+    assert fix.confidence < 0.5 and any("within one grid step (10 m) of the searched area's edge"
+                                        in n for n in fix.notes), fix.notes
+
+
+def test_a_fix_refined_out_of_the_database_is_kept_and_said_to_lie_outside(files):
+    """The rover stands 40 m beyond the database's area: the database's best match is on its
+    edge, and refinement on the DEM walks out to the rover. The fix stays where the skyline says
+    (clamped to x = 500 it would be 40 m off with a sigma of metres); it is not confident, since
+    nothing beyond the edge was searched, and says so with the distance (it said "within one grid
+    step of the edge")."""
     dem_path, _, db_path = files
     dem = _dem()
     fix = locate(_profile(dem, x=540.0, y=420.0), db=open_database(db_path), dem=dem)
-    assert fix.x >= 490.0  # pulled to the edge
-    assert fix.confidence < 0.5 and any("edge" in n for n in fix.notes)
+    assert np.hypot(fix.x - 540.0, fix.y - 420.0) < 1.0
+    assert fix.confidence <= DEGENERATE_CAP
+    assert any(re.search(r"the answer lies (39\.\d|40\.\d) m outside the searched area \(the "
+                         r"database's positions, x 300\.0\.\.500\.0 and y 300\.0\.\.500\.0 m\)", n)
+               for n in fix.notes), fix.notes
+    assert not any("within one grid step" in n for n in fix.notes)
+
+
+def test_a_fix_refined_off_a_one_column_database_is_not_confident(tmp_path, files):
+    """A strip of 51 positions along x = 400 (a database along a planned route), the rover 25 m
+    east of it: refinement walks to the rover. A grid one position wide has no edge in x to be
+    near, so the fix went out at confidence 0.95 with no note."""
+    dem_path, _, _ = files
+    strip = tmp_path / "strip.zarr"
+    build_database(dem_path, strip, (400, 300, 400, 500), 4, workers=0, progress=False,
+                   azimuth_bins=180, block=8)
+    db = open_database(strip)
+    assert (len(db.x_coords), len(db.y_coords)) == (1, 51)
+    dem = _dem()
+    fix = locate(_profile(dem, x=425.0, y=400.0), db=db, dem=dem)
+    assert np.hypot(fix.x - 425.0, fix.y - 400.0) < 1.0
+    assert fix.confidence <= DEGENERATE_CAP
+    assert any("25.0 m outside the searched area" in n for n in fix.notes), fix.notes
+
+
+def test_a_fix_refined_out_of_the_prior_disc_says_how_far(files):
+    """Without a database: a prior disc of 10 m around (412, 387), the rover at (430, 387). The
+    refinement walks 8 m past the disc to the rover; the note said "within one grid step (2 m)
+    of the searched area's edge"."""
+    dem = _dem()
+    fix = locate(_profile(dem, x=430.0, y=387.0), dem=dem, prior_xy=(412.0, 387.0),
+                 prior_radius_m=10.0)
+    assert np.hypot(fix.x - 430.0, fix.y - 387.0) < 1.0
+    assert fix.confidence <= DEGENERATE_CAP
+    assert any("8.0 m outside the searched area (the prior disc of 10 m around (412.0, 387.0))"
+               in n and "--prior-radius-m" in n for n in fix.notes), fix.notes
 
 
 def test_a_fix_inside_a_healthy_search_keeps_its_confidence(files):

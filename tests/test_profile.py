@@ -23,8 +23,8 @@ from skyfix.errors import DetectionError
 from skyfix.formats import Acquisition, Frame, PanoramaSpec, Skyline, save_acquisition
 from skyfix.horizon import render_horizons
 from skyfix.profile import (
-    PanRefinement, acquisition_profile, horizon_rows, panorama_profile, profile_from_skylines,
-    sample_polyline, skyline_az_el,
+    DEFAULT_AZIMUTH_BINS, PanRefinement, acquisition_profile, horizon_rows, panorama_profile,
+    profile_bins, profile_from_skylines, sample_polyline, skyline_az_el,
 )
 
 FINE = 7200  # forward-model horizon sampling (0.05 deg)
@@ -117,6 +117,20 @@ def test_sample_polyline_linear_across_north():
 
 
 # --- against the renderer -------------------------------------------------------------------------
+
+def test_profile_bins_are_the_databases_else_the_default():
+    """The rule locate, traverse and evaluate each spelled out: a profile searched in a database
+    is made in its bins (a store's attribute may be a NumPy integer), else in 360 of 1 deg."""
+    class Store:
+        azimuth_bins = np.int64(90)
+
+    assert profile_bins(Store()) == 90 and type(profile_bins(Store())) is int
+    assert profile_bins(None) == DEFAULT_AZIMUTH_BINS == 360
+    import inspect
+
+    default = inspect.signature(acquisition_profile).parameters["azimuth_bins"].default
+    assert default == DEFAULT_AZIMUTH_BINS
+
 
 def test_full_circle_matches_rendered_horizon(scene):
     fine, truth = scene

@@ -135,7 +135,7 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
     from .formats import load_acquisition, load_truth
     from .north import meridian_convergence_deg
     from .pose import estimate_heading, locate
-    from .profile import acquisition_profile
+    from .profile import acquisition_profile, profile_bins
 
     truth = load_truth(case_dir)  # scoring only: the pipeline below never sees it
     # the simulator's yaw is from grid north; the report gives the truth from true north beside it
@@ -150,7 +150,7 @@ def run_case(case_dir: Path, set_name: str, cfg: EvalConfig, dem, db, rng: np.ra
         t0 = time.perf_counter()
         profile = acquisition_profile(acq, detector=cfg.detector,
                                       skylines=truth_skylines(acq) if cfg.skylines == "truth" else None,
-                                      azimuth_bins=int(db.azimuth_bins) if db is not None else 360)
+                                      azimuth_bins=profile_bins(db))
         res.time_profile_s = time.perf_counter() - t0
         extra["profile"] = profile
         extra["prior"] = (acq.prior_pitch_deg, acq.prior_roll_deg)

@@ -76,10 +76,11 @@ def _check_prior_area(db, dem, prior, radius_m) -> None:
         dem.require_inside(np.array([prior[0]]), np.array([prior[1]]), "prior position")
 
 
-def _read_profile(acq, profile_path, frames=None, detector=None, azimuth_bins=360):
+def _read_profile(acq, profile_path, frames=None, detector=None, db=None):
     """Profile from ``--profile`` JSON, else from the acquisition ``acq`` (:func:`_read_acquisition`;
     one of the two, as :func:`_check_source` made sure), its images detected with
-    ``detector`` (a method name; None: the default); with the attitude prior (pitch, roll) [deg]
+    ``detector`` (a method name; None: the default) into the database ``db``'s azimuth bins
+    (:func:`~skyfix.profile.profile_bins`); with the attitude prior (pitch, roll) [deg]
     and the camera height [m] (None when the profile does not say). ``frames``, a list, receives
     each frame's detected rows (:class:`~skyfix.pose.image_plane.FrameRows`) when the profile
     comes from frames."""
@@ -93,8 +94,9 @@ def _read_profile(acq, profile_path, frames=None, detector=None, azimuth_bins=36
             prof.meta.get("camera_height_m")
     import numpy as np
 
-    from ..profile import acquisition_profile
+    from ..profile import acquisition_profile, profile_bins
 
+    azimuth_bins = profile_bins(db)
     n = len(acq.frames) or 1
     with stage(f"skyline detected and profiled ({n} image{'s' * (n > 1)})") as st:
         if frames is not None and acq.frames and acq.panorama is None:
@@ -329,8 +331,7 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     frames = []  # the frames' detected rows: a narrow view's attitude is also solved in the image
     # the profile in the database's bins: a store of 90 bins made a 360-bin profile it then
     # refused, after detection
-    prof, pp, pr, cam_h = _read_profile(acq, profile_path, frames, detector,
-                                        int(db.azimuth_bins) if db is not None else 360)
+    prof, pp, pr, cam_h = _read_profile(acq, profile_path, frames, detector, db)
     if profile_path is not None:
         notes += _check_camera_height(db, db_path, cam_h)
     from ..match import PRESETS

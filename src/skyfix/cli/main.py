@@ -67,7 +67,7 @@ class LazyGroup(click.Group):
             if e.name == f"skyfix.cli.{module}":
                 return None
             raise
-        return getattr(mod, attr)
+        return with_verbosity_options(getattr(mod, attr))
 
     def format_commands(self, ctx, formatter):
         # Help text from the table, without importing every subcommand module.
@@ -99,6 +99,39 @@ class LazyGroup(click.Group):
                             "(check the path, its permissions and free disk space)") from None
 
 
+#: ctx.meta key: the -v count and -q given so far, the group's first, then the subcommand's
+VERBOSITY = "skyfix.verbosity"
+
+VERBOSE_HELP = "More log output: -v skyfix's details, -vv its debug, -vvv everyone's debug."
+QUIET_HELP = "Only errors on stderr (no stage lines, warnings, progress bars or summaries)."
+
+
+def _verbosity_after(ctx, param, value):
+    """Callback of a subcommand's -v/-q: added to the group's (``skyfix -v locate ... -v`` is
+    -vv; -q anywhere is quiet) and logging configured again, before the command runs."""
+    given = ctx.meta.setdefault(VERBOSITY, {"verbose": 0, "quiet": False})
+    if param.name == "verbose" and value:
+        given["verbose"] += value
+    elif param.name == "quiet" and value:
+        given["quiet"] = True
+    else:
+        return  # not given here: the group's configuration stands
+    configure_logging(given["verbose"], given["quiet"])
+
+
+def with_verbosity_options(cmd):
+    """``cmd`` with -v/--verbose and -q/--quiet of its own, meaning what the group's mean: users
+    put them after the subcommand as often as before it, and click knew them only before. Added
+    once (``attitude`` shares ``heading``'s parameter list)."""
+    if cmd is not None and not any(p.name == "verbose" for p in cmd.params):
+        cmd.params.extend([
+            click.Option(["-v", "--verbose"], count=True, expose_value=False,
+                         callback=_verbosity_after, help=VERBOSE_HELP),
+            click.Option(["-q", "--quiet"], is_flag=True, expose_value=False,
+                         callback=_verbosity_after, help=QUIET_HELP)])
+    return cmd
+
+
 class UserError(click.ClickException):
     """A SkyfixError as the CLI reports it: ``Error: <message>``, exit status 2."""
 
@@ -107,12 +140,13 @@ class UserError(click.ClickException):
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, "--version", prog_name="skyfix")
-@click.option("-v", "--verbose", count=True,
-              help="More log output: -v skyfix's details, -vv its debug, -vvv everyone's debug.")
-@click.option("-q", "--quiet", is_flag=True,
-              help="Only errors on stderr (no stage lines, warnings, progress bars or summaries).")
-def cli(verbose: int, quiet: bool):
+@click.option("-v", "--verbose", count=True, help=VERBOSE_HELP)
+@click.option("-q", "--quiet", is_flag=True, help=QUIET_HELP)
+@click.pass_context
+def cli(ctx, verbose: int, quiet: bool):
     """skyfix: where a rover is and which way it faces, from the skyline."""
+    # a subcommand's own -v/-q add to these (with_verbosity_options)
+    ctx.meta[VERBOSITY] = {"verbose": verbose, "quiet": quiet}
     configure_logging(verbose, quiet)
 
 

@@ -3,7 +3,11 @@
 
 from __future__ import annotations
 
+import logging
+import time
 from dataclasses import replace
+
+import numpy as np
 
 from ..errors import ParameterError
 from ..formats import Skyline
@@ -16,6 +20,8 @@ from .options import DEFAULT_METHOD, METHODS, PRESETS, check_options
 #: method name -> detector(img, valid, options, model) -> (rows, confidence, column validity);
 #: a new detector enters here and in :data:`skyfix.detect.options.PRESETS`
 DETECTORS = {"dp": detect_dp, "bayes": detect_bayes, "net": detect_net, "fuse": detect_dp}
+
+log = logging.getLogger(__name__)
 
 
 def detect_skyline(image, *, mask=None, method: str = DEFAULT_METHOD, name: str = "", model=None,
@@ -55,5 +61,15 @@ def detect_skyline(image, *, mask=None, method: str = DEFAULT_METHOD, name: str 
         img = img[..., 0]  # a grey image stored as RGB: treated as the grey image it is
     valid = valid_mask(img, mask, opt.no_data_black)
     H, W = img.shape[:2]
+    t0 = time.perf_counter()
     rows, conf, col_valid = DETECTORS[method](img, valid, opt, model)
+    if log.isEnabledFor(logging.INFO):
+        # -v: what was detected and how sure, per image (an acquisition logs each frame)
+        found = np.isfinite(rows)
+        log.info("%s%s, %d x %d px %s, %.0f %% of pixels valid: skyline in %d of %d columns, "
+                 "median confidence %.2f (%.2f s)", f"{name}: " if name else "", method, W, H,
+                 "grey" if img.ndim == 2 else "colour", 100.0 * float(np.mean(valid)),
+                 int(found.sum()), W,
+                 float(np.median(conf[found])) if conf is not None and found.any() else float("nan"),
+                 time.perf_counter() - t0)
     return Skyline(rows=rows, width=W, height=H, image=name, confidence=conf, valid=col_valid)

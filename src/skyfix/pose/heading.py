@@ -4,7 +4,9 @@ window about the prior.
 
 from __future__ import annotations
 
+import logging
 import math
+import time
 
 import numpy as np
 
@@ -20,6 +22,8 @@ from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
                           image_plane_attitude, view_span_deg)
 from .scoring import profile_arrays
 
+
+log = logging.getLogger(__name__)
 
 #: Confidence at most, of a heading pinned to the edge of its search window.
 PINNED_HEADING_CONFIDENCE = 0.05
@@ -107,6 +111,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         raise ParameterError(f"rough position must be finite [m], got ({x}, {y})")
     if model is None:  # read once: the confidence and the sigma both use it
         model = load_confidence_model()
+    t0 = time.perf_counter()
     q, noise = profile_arrays(profile)
     n = q.size
     dem.require_inside(np.array([x]), np.array([y]), "rough position")
@@ -142,6 +147,14 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     # Landscape inside the window: best vs best shift more than 3 deg away.
     far = inwin & (np.abs(wrap_deg(shifts - att.yaw_deg)) > 3.0)
     other = float(s[far].min()) if far.any() else np.inf
+    # -v: what the search saw (a rival close to the best says why a confidence is low)
+    log.info("heading search at (%.1f, %.1f): grid %.1f +- %g deg, %d of %d bins observed, tilt "
+             "harmonic %s: best shift %.1f deg (score %.4g), best beyond 3 deg %.4g (%.2f s)",
+             x, y, heading_prior_deg, window_deg, int(np.isfinite(q).sum()), n,
+             "removed" if tilt else "kept (narrow view)", h0, float(s[k]), other,
+             time.perf_counter() - t0)
+    log.info("attitude fit: yaw %.2f, pitch %.2f, roll %.2f deg, robust rms %.3f deg against a "
+             "noise of %.3f", att.yaw_deg, att.pitch_deg, att.roll_deg, att.robust_rms_deg, noise)
     relief = float(np.nanstd(q))
     feat = confidence_features(float(s[inwin].min()), other, att.robust_rms_deg, noise,
                                relief, float(np.isfinite(q).mean()),
@@ -159,6 +172,10 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                                    camera_height_m=camera_height_m, planet=planet,
                                    prior=(heading_prior_deg, prior_pitch_deg, prior_roll_deg),
                                    window_deg=window_deg, dem_sigma_m=dem_sigma_m)
+    if img is not None:
+        log.info("image-plane solve: yaw %.2f (%+.2f from the profile fit), pitch %.2f, roll %.2f "
+                 "deg", img.yaw_deg, wrap_deg(img.yaw_deg - att.yaw_deg), img.pitch_deg,
+                 img.roll_deg)
     yaw, pitch, roll = (img.yaw_deg, img.pitch_deg, img.roll_deg) if img is not None else \
         (att.yaw_deg, att.pitch_deg, att.roll_deg)
     if img is not None and abs(wrap_deg(img.yaw_deg - att.yaw_deg)) > 1.0:
@@ -191,6 +208,10 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         # alike then say little of the heading (7.8 M deg at confidence 0.9999997 with 1e9 m). At
         # most the chance that a normal error of that sigma stays within the tolerance.
         conf = min(conf, math.erf(HEADING_TOLERANCE_DEG / (hsig * math.sqrt(2.0))))
+    log.debug("heading confidence features: %s",
+              ", ".join(f"{k} {v:.3g}" for k, v in feat.items()))
+    log.info("heading %.2f deg (grid) +- %.2f, confidence %.2f (%.2f s in all)", grid, hsig, conf,
+             time.perf_counter() - t0)
     determined = {k: bool(math.isfinite(v) and v <= DETERMINED_SIGMA_DEG)
                   for k, v in (("heading", hsig), ("pitch", psig), ("roll", rsig))}
     return HeadingFix(true_heading_deg(grid, conv), hsig, pitch, roll,

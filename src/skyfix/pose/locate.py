@@ -27,6 +27,7 @@ The forward model (world horizon -> body-frame profile for an attitude) is :func
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import replace
 
@@ -48,6 +49,8 @@ from .refine import inside_dem, prior_grid, refine_candidates
 from .scoring import clipped_costs, profile_arrays, render_points, robust_scores
 
 
+log = logging.getLogger(__name__)
+
 #: the most confidence a degenerate search may report (:func:`degenerate_search`)
 DEGENERATE_CAP = 0.45
 #: fewer database positions than this in the searched area is a degenerate search
@@ -56,10 +59,18 @@ MIN_SEARCHED_POSITIONS = 49
 
 def degenerate_search(db, dem, x, y, prior_xy, prior_radius_m, tolerance_m, grid_step_m):
     """Why a search cannot support a confident answer, whatever its scores say (a list of
-    reasons, empty when none): a handful of positions searched, the answer on the edge of the
-    searched area (the truth may lie beyond it), or a grid far coarser than the accuracy asked
-    with no DEM to refine on. Positions [m]."""
+    reasons, empty when none): a handful of positions searched, the answer outside the searched
+    area or on its edge (the truth may lie beyond it), or a grid far coarser than the accuracy
+    asked with no DEM to refine on. Positions [m].
+
+    The refinement on the DEM (:func:`~skyfix.pose.refine.refine_candidates`) is not held inside
+    the searched area: its re-centred grids and its compass search follow the cost wherever the
+    DEM has heights, so a rover standing beyond the database's positions or the prior disc is
+    found where it stands. Such an answer is kept, not clamped to the edge (a clamped position
+    is one the skyline does not support, with a sigma that does not cover its error); it is said
+    to lie outside, and how far, since no rival beyond the edge was ever compared with it."""
     reasons = []
+    outside = []  # (how far beyond [m], the area, how to search it)
     if db is not None:
         xs, ys = np.asarray(db.x_coords, float), np.asarray(db.y_coords, float)
         n = xs.size * ys.size
@@ -79,11 +90,23 @@ def degenerate_search(db, dem, x, y, prior_xy, prior_radius_m, tolerance_m, grid
         lo_x, hi_x, lo_y, hi_y = xs.min(), xs.max(), ys.min(), ys.max()
         edge = min(x - lo_x if xs.size > 1 else np.inf, hi_x - x if xs.size > 1 else np.inf,
                    y - lo_y if ys.size > 1 else np.inf, hi_y - y if ys.size > 1 else np.inf)
+        outside.append((math.hypot(max(lo_x - x, 0.0, x - hi_x), max(lo_y - y, 0.0, y - hi_y)),
+                        f"the database's positions, x {lo_x:.1f}..{hi_x:.1f} and y "
+                        f"{lo_y:.1f}..{hi_y:.1f} m", "a database built over a wider area"))
     else:
         step, edge = float(grid_step_m), np.inf
     if prior_xy is not None and prior_radius_m is not None:
-        edge = min(edge, prior_radius_m - math.hypot(x - prior_xy[0], y - prior_xy[1]))
-    if edge < step:
+        d = math.hypot(x - prior_xy[0], y - prior_xy[1])
+        edge = min(edge, prior_radius_m - d)
+        outside.append((d - prior_radius_m, f"the prior disc of {prior_radius_m:g} m around "
+                        f"({prior_xy[0]:.1f}, {prior_xy[1]:.1f})", "a wider --prior-radius-m"))
+    # beyond every searched position's own half step: no position searched stands for it
+    far = max(outside, default=(0.0, "", ""))
+    if far[0] > step / 2.0:
+        reasons.append(f"the answer lies {far[0]:.1f} m outside the searched area ({far[1]}): "
+                       "refinement on the DEM followed the skyline past its edge, and no rival "
+                       f"beyond the edge was searched; search an area that holds it ({far[2]})")
+    elif edge < step:
         reasons.append(f"the answer lies within one grid step ({step:g} m) of the searched "
                        "area's edge: the rover may be outside it")
     return reasons
@@ -172,6 +195,22 @@ def _segment_candidates(db, q, config, known, *, prior_xy=None, prior_radius_m=N
     return out
 
 
+def _log_candidates(where, cands):
+    """-v: the candidates a search kept (x [m], y [m], score, heading [deg]), best first."""
+    log.info("%s: %d candidate%s kept%s", where, len(cands), "s" * (len(cands) != 1),
+             ": " + "; ".join(f"({x:.1f}, {y:.1f}) score {s:.4g} heading {h:.1f}"
+                              for x, y, s, h in cands[:8]) if cands else "")
+
+
+def _log_refined(results):
+    """-v: where each refined candidate went from where it started, and its cost."""
+    for d in results:
+        x0, y0 = d["start"]
+        log.info("refined (%.1f, %.1f) -> (%.1f, %.1f), moved %.1f m: clipped cost %.4f deg^2, "
+                 "heading %.2f deg", x0, y0, d["x"], d["y"], math.hypot(d["x"] - x0, d["y"] - y0),
+                 d["cost"], d["heading"])
+
+
 def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
            prior_pitch_deg: float = 0.0, prior_roll_deg: float = 0.0,
            camera_height_m: float | None = None, planet=None, config: PoseConfig = PoseConfig(),
@@ -235,6 +274,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
             k = len(mres.candidates)
             st.result = f"{k} candidate{'s' * (k != 1)} in distinct basins"
         cands = [(c.x, c.y, c.score, c.heading_deg) for c in mres.candidates]
+        _log_candidates("database search", cands)
         step0 = float(db.spacing_m) / 4.0
         crs_wkt = getattr(db, "crs_wkt", "") or (dem.crs_wkt if dem is not None else "")
     else:
@@ -258,6 +298,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
                 cands.append((float(gx[i]), float(gy[i]), float(sc[i]), float(sh[i]) * 360.0 / n))
             if len(cands) >= config.match.top_k:
                 break
+        _log_candidates(f"prior area, {gx.size} points at {step:g} m on the DEM,", cands)
         step0 = step / 4.0
         crs_wkt = dem.crs_wkt
     if not cands:
@@ -275,6 +316,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         with stage(f"  {k} candidate{'s' * (k != 1)} refined on the DEM") as st:
             results = refine_candidates(dem, q, cands[: config.refine_candidates], step0, config, **kw)
             st.result = f"best clipped cost {results[0]['cost']:.4f} deg^2" if results else "none"
+        _log_refined(results)
         rest = list(cands[config.refine_candidates:])
         out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg,
                       model, "locate" if db is not None else "locate_prior")
@@ -283,9 +325,14 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
             known = [(d["x"], d["y"]) for d in results] + [(c[0], c[1]) for c in rest]
             extra = _segment_candidates(db, q, config, known, prior_xy=prior_xy,
                                         prior_radius_m=prior_radius_m)
+            log.info("confidence %.2f, robust rms %.1f x the noise: searched again with each of "
+                     "%d parts of the skyline left out, %d new candidate%s", out["conf"],
+                     math.exp(out["feat"]["log_rms_over_noise"]), config.retry_segments,
+                     len(extra), "s" * (len(extra) != 1))
             if extra:
-                results = sorted(results + refine_candidates(dem, q, extra, step0, config, **kw),
-                                 key=lambda d: d["cost"])
+                more = refine_candidates(dem, q, extra, step0, config, **kw)
+                _log_refined(more)
+                results = sorted(results + more, key=lambda d: d["cost"])
                 out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg,
                               prior_roll_deg, model, "locate")
         fx, fy, heading, pitch, roll = out["x"], out["y"], out["heading"], out["pitch"], out["roll"]
@@ -320,18 +367,26 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
                                    camera_height_m=camera_height_m, planet=planet,
                                    dem_sigma_m=config.map_sigma_m)
         if img is not None:
+            log.info("image-plane solve: yaw %.2f (%+.2f from the profile fit), pitch %.2f, "
+                     "roll %.2f deg", img.yaw_deg, wrap_deg(img.yaw_deg - heading), img.pitch_deg,
+                     img.roll_deg)
             if abs(wrap_deg(img.yaw_deg - heading)) > 1.0:
                 conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)
                 notes.append(f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
                              "heading lies more than 1 deg from the profile fit's")
             heading, pitch, roll = img.yaw_deg, img.pitch_deg, img.roll_deg
             hsig = max(hsig, img.yaw_sigma_deg)
+    log.info("fix (%.1f, %.1f), grid heading %.2f, pitch %.2f, roll %.2f deg; clipped cost %.4f "
+             "deg^2; confidence %.2f before caps", fx, fy, heading, pitch, roll, best_s, conf)
+    log.debug("confidence features: %s", ", ".join(f"{k} {v:.3g}" for k, v in feat.items()))
     degenerate = degenerate_search(db, dem, fx, fy, prior_xy, prior_radius_m,
                                    config.tolerance_m if db is not None else 1.0,
                                    config.grid_step_m)
     if degenerate:
         conf = min(conf, DEGENERATE_CAP)
         notes += [f"confidence capped at {DEGENERATE_CAP}: {r}" for r in degenerate]
+        for r in degenerate:
+            log.info("confidence capped at %s: %s", DEGENERATE_CAP, r)
     if height_gap > 0:
         psig = math.hypot(psig, height_gap)
     if dem is None:

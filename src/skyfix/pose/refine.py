@@ -240,8 +240,9 @@ def refine_candidates(dem, q, cands, step0, config, *, camera_height_m, planet, 
         x, y, s, local, att, cost, resid = refine_candidate(
             dem, q, cx, cy, ch, step0, config, camera_height_m=camera_height_m, planet=planet,
             prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg, noise=noise)
+        # start: where the candidate was before refinement, to say how far it walked
         results.append(dict(x=x, y=y, score=s, heading=att.yaw_deg, att=att, local=local,
-                            db_score=cs, cost=cost, resid=resid))
+                            db_score=cs, cost=cost, resid=resid, start=(float(cx), float(cy))))
     if config.polish:
         # Every refined candidate gets the same final polish: the grid's score can leave the
         # true basin's candidate behind a worse one (rocks over a quarter of the view), and the

@@ -22,14 +22,14 @@ and detection), :mod:`.geometry`, :mod:`.pans` (pan refinement), :mod:`.merge`, 
 :mod:`.stitch`.
 """
 
-from .acquisition import METHODS, acquisition_profile
+from .acquisition import DEFAULT_AZIMUTH_BINS, METHODS, acquisition_profile, profile_bins
 from .frames import Detector, detect_frames, get_detector, read_rgb
 from .geometry import horizon_rows, levelling_rotation, sample_polyline, skyline_az_el
 from .merge import merge_samples
 from .pans import DEFAULT_REFINEMENT, PanRefinement, refine_pans
 from .project import panorama_profile, profile_from_skylines
 
-__all__ = ["DEFAULT_REFINEMENT", "METHODS", "Detector", "PanRefinement", "acquisition_profile",
-           "detect_frames", "get_detector", "horizon_rows", "levelling_rotation", "merge_samples",
-           "panorama_profile", "profile_from_skylines", "read_rgb", "refine_pans",
-           "sample_polyline", "skyline_az_el"]
+__all__ = ["DEFAULT_AZIMUTH_BINS", "DEFAULT_REFINEMENT", "METHODS", "Detector", "PanRefinement",
+           "acquisition_profile", "detect_frames", "get_detector", "horizon_rows",
+           "levelling_rotation", "merge_samples", "panorama_profile", "profile_bins",
+           "profile_from_skylines", "read_rgb", "refine_pans", "sample_polyline", "skyline_az_el"]

@@ -21,8 +21,19 @@ log = logging.getLogger(__package__)  # messages name the stage, as before the s
 
 METHODS = ("project", "stitch")
 
+#: azimuth bins of a profile made for no database (conventions.md: 360 bins of 1 deg)
+DEFAULT_AZIMUTH_BINS = 360
 
-def acquisition_profile(acq: Acquisition, *, method: str = "project", azimuth_bins: int = 360,
+
+def profile_bins(db=None) -> int:
+    """The azimuth bins to make an acquisition's profile in: the database's when there is one
+    (its search takes no other bin count), else :data:`DEFAULT_AZIMUTH_BINS` (a search on the
+    DEM alone, or a heading, takes any)."""
+    return int(db.azimuth_bins) if db is not None else DEFAULT_AZIMUTH_BINS
+
+
+def acquisition_profile(acq: Acquisition, *, method: str = "project",
+                        azimuth_bins: int = DEFAULT_AZIMUTH_BINS,
                         detector: str | Detector | None = None, skylines: Sequence[Skyline | None] | None = None,
                         refine: PanRefinement = DEFAULT_REFINEMENT) -> Profile:
     """The body-frame angular profile of an acquisition.

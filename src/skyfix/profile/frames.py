@@ -48,8 +48,8 @@ def get_detector(detector: str | Detector | None = None) -> Detector:
 
     method = detector or DEFAULT_METHOD
 
-    def run(image, mask=None):
-        return detect_skyline(image, mask=mask, method=method)
+    def run(image, mask=None, name=""):
+        return detect_skyline(image, mask=mask, method=method, name=name)
 
     return run
 
@@ -57,6 +57,9 @@ def get_detector(detector: str | Detector | None = None) -> Detector:
 def detect_frames(acq: Acquisition, detector: str | Detector | None = None) -> list[Skyline | None]:
     """Detect the skyline in every frame; a frame whose detection raises DetectionError is None."""
     det = get_detector(detector)
+    # a method's detector takes the frame's name (its -v line names the frame); a caller's own
+    # callable is called as the Detector protocol says
+    named = not callable(detector)
     out: list[Skyline | None] = []
     for f in acq.frames:
         img = read_rgb(acq.image_path(f.image))
@@ -65,7 +68,7 @@ def detect_frames(acq: Acquisition, detector: str | Detector | None = None) -> l
             raise AcquisitionError(
                 f"image {f.image} is {w} x {h} px but camera is {acq.camera.width} x {acq.camera.height}")
         try:
-            s = det(img, mask=None)
+            s = det(img, mask=None, name=f.image) if named else det(img, mask=None)
             s.image = s.image or f.image
             out.append(s)
         except DetectionError as e:

@@ -79,6 +79,14 @@ def profile_from_skylines(acq: Acquisition, skylines: Sequence[Skyline | None], 
     for m, i in enumerate(used):
         records[i].update(pan_deg=float(pans[m] + delta[m]), pan_correction_deg=float(delta[m]),
                           bins=int(np.isfinite(vals[:, m]).sum()))
+        log.debug("frame %d (%s): pan %.2f deg %+.2f refined, %d skyline columns -> %d bins", i,
+                  acq.frames[i].image, pans[m], delta[m], records[i]["skyline_columns"],
+                  records[i]["bins"])
+    # -v: a pan refinement that moved a frame by degrees says the mast's pans (or the overlaps'
+    # skylines) are suspect
+    log.info("profile: %d of %d frames used, pans refined by %+.2f to %+.2f deg (%d overlaps), "
+             "%.0f deg of azimuth observed", len(used), len(acq.frames), float(np.min(delta)),
+             float(np.max(delta)), len(pairs), np.isfinite(el).sum() * 360.0 / azimuth_bins)
     meta = {
         "method": method, "attitude_prior": {"pitch_deg": pitch, "roll_deg": roll},
         "frames": records, "frames_used": len(used), "frames_dropped": len(acq.frames) - len(used),

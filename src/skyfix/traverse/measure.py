@@ -21,7 +21,7 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
     from ..formats import load_acquisition
     from ..pose import PoseConfig, estimate_heading, locate
     from ..pose.heading import HEADING_POSITION_SIGMA_M
-    from ..profile import acquisition_profile
+    from ..profile import acquisition_profile, profile_bins
 
     cfg = pose_config or PoseConfig()
     cache = {}
@@ -31,8 +31,7 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
             cache.clear()  # one stop's profile at a time
             acq = load_acquisition(trav.folders[k])
             # in the database's bins: its search takes no other (the headings take any)
-            prof = acquisition_profile(acq, detector=detector,
-                                       azimuth_bins=int(db.azimuth_bins) if db is not None else 360)
+            prof = acquisition_profile(acq, detector=detector, azimuth_bins=profile_bins(db))
             obs = int(np.isfinite(prof.elevation_deg).sum())
             if obs < MIN_BINS:
                 raise SkyfixError(f"{obs} azimuth bins of skyline detected (at least {MIN_BINS} "
