@@ -263,14 +263,21 @@ def batches(images, p, batch, seed, steps, workers, *, index=False, keyed=False)
     import collections
     import multiprocessing
 
-    with multiprocessing.get_context("spawn").Pool(
-            workers, _worker_init, (images, p, batch, seed)) as pool:
+    pool = multiprocessing.get_context("spawn").Pool(workers, _worker_init, (images, p, batch, seed))
+    try:
         ahead = collections.deque()
         for k in ks:
             left = steps - k if steps is not None else 4 * workers
             while len(ahead) < min(4 * workers, left):  # bounded: batches are 11 MB each
                 ahead.append(pool.apply_async(_worker_batch, (k + len(ahead),)))
             yield ahead.popleft().get()[cut]
+    finally:
+        # Closed and joined (the batches asked ahead, 4 a worker, are finished first), never
+        # terminated as the Pool's context manager does: a worker killed while it holds the task
+        # queue's lock leaves Pool.terminate waiting for that lock for ever (a test run hung there,
+        # its two workers dead, when a stream was dropped after its first batch).
+        pool.close()
+        pool.join()
 
 
 def draw_probabilities(images, weights=(0.45, 0.35, 0.2), nosky_boost=2.0, sim_scale=1.0):
