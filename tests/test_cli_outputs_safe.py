@@ -399,3 +399,24 @@ def test_simulate_set_refuses_options_it_does_not_read(dem, tmp_path, monkeypatc
     # without the option the set is rendered
     r = run("simulate-set", dem, "--set", args[1], "--cases", 1, "-o", tmp_path / "s")
     assert isinstance(r.exception, Reached), r.output
+
+
+def test_evaluate_refuses_a_tilt_only_scom_would_ignore(dem, tmp_path, monkeypatch):
+    """evaluate --sets SCOM --tilt-deg 40 simulated SCOM at its own tilt, exit 0, not a word;
+    with another set beside SCOM the tilt is that set's, and the run goes on."""
+    import skyfix.evaluate
+
+    def reached(*a, **k):
+        raise Reached
+
+    monkeypatch.setattr(skyfix.evaluate, "evaluate", reached)
+    out = tmp_path / "e"
+    r = run("evaluate", "--dem", dem, "--scenario", 2, "--sets", "scom", "--tilt-deg", 40,
+            "--cases", 1, "--out", out)
+    assert r.exit_code == 2 and "--tilt-deg: not read by the set SCOM" in r.output, r.output
+    assert "Traceback" not in r.output and not out.exists()
+    for sets in ("SCOM,REF", "SCOM"):  # with a set that reads it; without the option
+        extra = ("--tilt-deg", 40) if "REF" in sets else ()
+        r = run("evaluate", "--dem", dem, "--scenario", 2, "--sets", sets, *extra, "--cases", 1,
+                "--out", out)
+        assert isinstance(r.exception, Reached), r.output

@@ -10,7 +10,7 @@ import click
 
 from ..detect.options import DEFAULT_METHOD, METHODS
 from ..errors import OutputExistsError, ParameterError
-from .options import dem_sigma, detector_option, overwrite_option, traverse_path_options
+from .options import dem_sigma, detector_option, given, overwrite_option, traverse_path_options
 
 
 @click.command()
@@ -83,6 +83,12 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
         click.echo(f"wrote {report}")
         return
     scenario = int(scenario)
+    names = {s.strip().upper() for s in sets.split(",") if s.strip()}
+    if names == {"SCOM"} and given("tilt_deg"):
+        # SCOM tilts each case's camera itself: the run would say nothing and ignore it
+        raise ParameterError("--tilt-deg: not read by the set SCOM (it tilts each case's camera so "
+                             "that the skyline leaves the top of the frame): drop it, or add a set "
+                             "that reads it")
 
     cfg = EvalConfig(scenario=scenario, sets=tuple(s.strip().upper() for s in sets.split(",") if s.strip()),
                      cases=cases, seed=seed, area=tuple(area) if area else None,

@@ -9,6 +9,12 @@ from ..errors import ParameterError
 from ..planets import get_planet
 
 
+def given(name: str) -> bool:
+    """Whether the option ``name`` was given on the command line (not its default)."""
+    source = click.get_current_context().get_parameter_source(name)
+    return source is click.core.ParameterSource.COMMANDLINE
+
+
 def _planet(ctx, param, value):
     if value is None:
         return None

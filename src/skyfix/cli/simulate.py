@@ -6,6 +6,7 @@ import click
 
 from .._io import writing_to
 from ..errors import ParameterError
+from .options import given
 
 CONDITION_HELP = ("Comma-separated degradations, each NAME or NAME:STRENGTH in [0, 1]: dust, clouds "
                   "(Earth), snow (Earth), lake (Earth), rocks, glare, overexposed, dark, blur. "
@@ -17,19 +18,13 @@ MODE_OPTIONS = {"frames": ("camera", "frames", "pan_start_deg", "pan_step_deg", 
                 "panorama": ("pano_size",)}
 
 
-def _given(name: str) -> bool:
-    """Whether the option ``name`` was given on the command line (not its default)."""
-    source = click.get_current_context().get_parameter_source(name)
-    return source is click.core.ParameterSource.COMMANDLINE
-
-
 def _check_mode_options(mode: str) -> None:
     """Refuse an option given on the command line that ``mode`` does not read."""
-    given = [name for other, names in MODE_OPTIONS.items() if other != mode for name in names
-             if _given(name)]
-    if given:
-        flags = ", ".join("--" + g.replace("_", "-") for g in given)
-        many = len(given) > 1
+    named = [name for other, names in MODE_OPTIONS.items() if other != mode for name in names
+             if given(name)]
+    if named:
+        flags = ", ".join("--" + g.replace("_", "-") for g in named)
+        many = len(named) > 1
         raise ParameterError(f"{flags}: not read in --mode {mode} ({'they are' if many else 'it is'} "
                              f"for --mode {'frames' if mode == 'panorama' else 'panorama'}): drop "
                              f"{'them' if many else 'it'}")
@@ -146,7 +141,7 @@ def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, 
         raise ParameterError(f"cases must be >= 1, got {cases}")
     # Fail on bad options before loading anything (simulate_set checks them all again).
     _check_mode_options(mode)
-    if name.upper() == "SCOM" and _given("tilt_deg"):
+    if name.upper() == "SCOM" and given("tilt_deg"):
         # SCOM tilts each case's camera itself: --tilt-deg was rendered at another tilt, exit 0
         raise ParameterError("--tilt-deg: not read by --set SCOM (it tilts each case's camera so "
                              "that the skyline leaves the top of the frame): drop it, or choose "
