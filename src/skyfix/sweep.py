@@ -70,13 +70,21 @@ RISING_M = 400.0
 #: one DEM cell where cells are larger: a line's crest sample and the tangent's maximum can lie
 #: most of a cell apart on a broad crest)
 WINDOW_M = 15.0
+#: [deg] a line's concave pieces (the bilinear surface along it between grid lines) are sampled
+#: densely enough that no chord lies more than this below the arc seen from ``near_m`` away
+#: (0.52 m at 100 m; less seen from farther): the hull of the samples must not miss a slope whose
+#: sight line touches mid-piece. The same everywhere (not from the nearest query), so that a
+#: line's samples, hence a position's skyline, do not depend on the other positions
+ARC_TOL_DEG = 0.3
+#: most points added along one piece
+ARC_MAX = 8
 
 
 def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows: int, cols: int,
                 *, camera_height_m: float = 1.5, planet=None, azimuth_bins: int = 360,
                 skip_tol_deg: float = 0.001, near_m: float = NEAR_M,
                 line_spacing_m: float | None = None, window_m: float | None = None,
-                rising_m: float = RISING_M) -> HorizonBatch:
+                rising_m: float = RISING_M, arc_tol_deg: float = ARC_TOL_DEG) -> HorizonBatch:
     """Skylines of a regular grid of positions (row-major, north to south, west to east).
 
     x_west, y_north : [m] the first position (row 0, column 0) in the DEM's CRS
@@ -91,6 +99,8 @@ def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows:
         DEM cell, at least :data:`WINDOW_M`)
     rising_m : [m] a ray whose near-field maximum is at ``near_m`` (still rising) is traced
         exactly out to this distance
+    arc_tol_deg : [deg] how far below a line's concave pieces the chords between its samples may
+        lie, seen from ``near_m`` away (:data:`ARC_TOL_DEG`; 0: crossings and crests only)
 
     Rays run to the DEM edge (no maximum distance). Returns a :class:`HorizonBatch` as
     :func:`~skyfix.horizon.render_horizons` does, with ``skyline_distance_m``. Memory: three float32
@@ -111,6 +121,8 @@ def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows:
                     ("rising distance", rising_m)):
         if not (v > 0 and math.isfinite(v)):
             raise ParameterError(f"{name} must be > 0 m, got {v}")
+    if not (0 <= arc_tol_deg < 90):
+        raise ParameterError(f"arc tolerance must be in [0, 90) deg, got {arc_tol_deg}")
     rows, cols = int(rows), int(cols)
     xs = x_west + np.arange(cols) * float(spacing_m)
     ys = y_north - np.arange(rows) * float(spacing_m)
@@ -129,7 +141,7 @@ def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows:
     _sweep_grid(dem.z, data, offs, prows, pcols, dem.x0, dem.y0, dem.dx, dem.dy, x, y,
                 float(camera_height_m), np.sin(az), np.cos(az), planet.curvature_coeff,
                 math.tan(math.radians(skip_tol_deg)), T_MIN_M, float(near_m), float(rising_m), ls,
-                win, elev, length, ground, dist)
+                win, math.tan(math.radians(arc_tol_deg)), elev, length, ground, dist)
     return HorizonBatch(x, y, np.ascontiguousarray(elev.T), np.ascontiguousarray(length.T), ground,
                         float(camera_height_m), float(np.inf), planet, np.ascontiguousarray(dist.T))
 
@@ -164,15 +176,19 @@ def _crossings(c, d, s_a):
 
 
 @njit(cache=True, nogil=True)
-def _line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w):
+def _line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w, arc_tol, near):
     """Terrain along a line from the grid-line crossing at or before ``s_a`` (not before the
     DEM entry ``s_in``) to ``s_b``, ascending: out_s [m] and ``w = z - curv s**2`` [m], at every
     grid-line crossing (the bilinear surface's kinks), at both ends, and at the top of every
     crossing-to-crossing piece that bulges upward (inside a cell the surface along a line is the
     parabola ``h + b s + e us vs s**2``: a ridge crossing a cell diagonally crests between the
-    crossings, metres above both). Starting on a crossing makes the samples past any point the
-    same whichever queries asked for the line. Samples over nodata are left out. Returns the
-    count."""
+    crossings, metres above both). Along such a piece also points enough that no chord lies
+    more than ``arc_tol * near`` [m] (``arc_tol`` an angle's tangent) below the parabola: a sight
+    line can touch a concave piece anywhere, not only at its crest (a slope that still climbs
+    where it meets the next grid line), and the hull of crossings and crests alone misses it by up
+    to the parabola's sagitta (metres on 80 m cells). Starting on a crossing makes the samples
+    past any point the same whichever queries asked for the line. Samples over nodata are left
+    out. Returns the count."""
     ny, nx = z.shape
     cap = out_s.shape[0]
     s0u, ku, step_u = _crossings(uc, us, s_a)
@@ -189,7 +205,7 @@ def _line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w):
     uv = us * vs
     # A line that enters the DEM beside the grid starts on the hull's edge, a grid line: rounding
     # can put the "next" crossing on the start itself, a piece of length 0 (no crest to look for).
-    while s < s_b and n < cap - 2:
+    while s < s_b and n < cap - 2 - ARC_MAX:
         nxt = min(ku, kv, s_b)
         if ku <= nxt:
             ku += step_u
@@ -201,15 +217,28 @@ def _line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w):
             j = min(max(int(math.floor(uc + us * mid)), 0), nx - 2)
             i = min(max(int(math.floor(vc + vs * mid)), 0), ny - 2)
             q = (z[i, j] - z[i, j + 1] - z[i + 1, j] + z[i + 1, j + 1]) * uv
-            if q < 0.0:  # concave: its vertex, if inside the piece
+            if q < 0.0:  # concave: its vertex, if inside the piece, and points along it
                 d = nxt - s
                 b = (h1 - h0) / d - q * d
                 x = -b / (2.0 * q)
-                if 0.0 < x < d:
-                    sv = s + x
-                    out_s[n] = sv
-                    out_w[n] = h0 + b * x + q * x * x - curv * sv * sv
-                    n += 1
+                ka = 1  # parts: a chord over a part of length d / ka lies q (d / ka)**2 / 8 low
+                if arc_tol > 0.0:
+                    tol_m = arc_tol * near
+                    ka = min(int(math.ceil(d * math.sqrt(-q / (8.0 * tol_m)))), ARC_MAX)
+                crest = 0.0 < x < d
+                for ia in range(1, ka + 1):
+                    xa = d * ia / ka
+                    if crest and x <= xa:
+                        sv = s + x
+                        out_s[n] = sv
+                        out_w[n] = h0 + b * x + q * x * x - curv * sv * sv
+                        n += 1
+                        crest = False
+                    if ia < ka and xa != x:
+                        sv = s + xa
+                        out_s[n] = sv
+                        out_w[n] = h0 + b * xa + q * xa * xa - curv * sv * sv
+                        n += 1
         if math.isfinite(h1):
             out_s[n] = nxt
             out_w[n] = h1 - curv * nxt * nxt
@@ -301,7 +330,7 @@ def _window(z, u0, v0, us, vs, zc, curv, lo, hi, near, t_end):
 
 @njit(cache=True, parallel=True, nogil=True)
 def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, caz, curv, tol,
-                t_min, near, rising, ls, win, out_el, out_len, out_ground, out_dist):
+                t_min, near, rising, ls, win, arc_tol, out_el, out_len, out_ground, out_dist):
     ny, nx = z.shape
     n = xs.shape[0]
     nb = saz.shape[0]
@@ -310,7 +339,7 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
         g = bilinear(z, (xs[k] - x0) / dx, (y0 - ys[k]) / dy)
         out_ground[k] = g
         zc[k] = g + h
-    cap = 8 * (nx + ny) + 16  # crossings and crests of the longest line
+    cap = (8 + 2 * ARC_MAX) * (nx + ny) + 16  # crossings, crests and arcs of the longest line
     for b in prange(nb):
         sa = saz[b]
         ca = caz[b]
@@ -380,7 +409,8 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
             s_a = max(s_in, qa[q[nq - 1]] + near)
             if s_a >= s_out:
                 continue
-            ns = _line_samples(z, uc, vc, us, vs, s_a, s_in, s_out, curv, buf_s, buf_w)
+            ns = _line_samples(z, uc, vc, us, vs, s_a, s_in, s_out, curv, buf_s, buf_w, arc_tol,
+                               near)
             top = -1
             p = ns - 1
             for j in range(nq):
@@ -461,4 +491,4 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
             out_dist[b, k] = tb if best > -np.inf else np.nan
 
 
-__all__ = ["render_grid", "NEAR_M", "WINDOW_M"]
+__all__ = ["render_grid", "NEAR_M", "WINDOW_M", "ARC_TOL_DEG"]
