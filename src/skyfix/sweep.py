@@ -23,7 +23,8 @@ value it returns stays, as the kernel's, the maximum over true points of the pos
    in closed form as the per-point kernel's level 0 does, over its near field (``t <= near_m``,
    where lines a few metres apart see different terrain), on out to ``rising_m`` where the ray is
    still climbing at ``near_m`` (a slope whose crest lies just beyond), and over ``+-window_m``
-   around the two lines' skyline points. Every value is thus a true point of the position's own
+   around the two lines' skyline points and a few hull vertices beside them that the lines see
+   only a little lower (:func:`~skyfix.sweep_lines.alternates`). Every value is thus a true point of the position's own
    ray: the renderer never overstates the skyline (beyond the kernel's own skip tolerance), and
    understates it only where the position's skyline lies on terrain that neither bracketing line
    ranks highest (a knob between the lines, 100 m - 1 km away, that both pass beside).
@@ -45,6 +46,19 @@ side see lower than a farther crest. Climbing every ray, not only a rising one, 
 the windows give, out to 1 km: max 0.125 deg (2 bins beyond 0.1), CPU x1.43; to 3 km: max 0.027,
 CPU x1.9; to the DEM edge: the kernel's values, CPU x2.25, as dear as the kernel. Not taken: the
 build's rate is what the sweep is for, and p99 is 0 either way.
+On 2026-11-28 (same bench; CPU on 500 m, one thread, load 3.4-3.8): lines sample their concave
+pieces along the arc (``ARC_TOL_DEG``: the hull of crossings and crests lay up to a sagitta,
+metres on the Alps' 80 m cells, below a slope a sight line touches mid-piece), CPU x1.01-1.09;
+and each line also offers the tangent vertex's nearer neighbour and the first vertex more than
+two windows beyond it, when seen within ``ALT_DELTA_DEG`` and ``LATERAL_SLOPE`` x the line's
+offset x (1/d_t + 1/d_i) below it. Together: max 0.083 / 0.156 / 0.097 / 0.099 deg (Sierra,
+Alps, glacier, generated; before 0.271 / 0.467 / 0.352 / 0.329), <= 0.001 % of bins beyond
+0.01 deg (before 0.007-0.051 %), p99 0, CPU x1.13 / 1.19 / 1.13 / 1.13, the bench's rate 1.8-2.4x
+the kernel's at load 3.3-4.3 (2.1-2.9x at load 0.4-1.5 before); camera 30 m: max 0.163 / 0.029 /
+0.095 / 0.085. Tried: the nearest vertex within 0.5-1 deg at under half the tangent's distance
+(generated, 500 m: 100 -> 75 bins beyond 0.1 deg; most misses lie *beyond* the tangent); without
+the offset gate CPU x1.28; an absolute 0.05 deg arc tolerance x1.25 on the Alps; one scaled by the
+nearest query's distance x1.02 but made the samples depend on the other positions.
 ``max_distance_m`` is not supported (a hull cannot forget terrain behind the limit); callers use
 the per-point kernel then.
 """
@@ -61,6 +75,7 @@ from .horizon import (T_MIN_M, HorizonBatch, azimuth_centres, bilinear, cell_max
                       edge_distance, packed_pyramid, pyramid_block, trace_ray)
 from .jit import njit, prange
 from .planets import resolve_planet
+from .sweep_lines import ARC_MAX, alternates, line_samples, line_span, tangent_vertex
 
 #: [m] every position's own ray is traced exactly out to this distance
 NEAR_M = 100.0
@@ -70,13 +85,28 @@ RISING_M = 400.0
 #: one DEM cell where cells are larger: a line's crest sample and the tangent's maximum can lie
 #: most of a cell apart on a broad crest)
 WINDOW_M = 15.0
+#: [deg] a line's concave pieces (the bilinear surface along it between grid lines) are sampled
+#: densely enough that no chord lies more than this below the arc seen from ``near_m`` away
+#: (0.52 m at 100 m; less seen from farther): the hull of the samples must not miss a slope whose
+#: sight line touches mid-piece. The same everywhere (not from the nearest query), so that a
+#: line's samples, hence a position's skyline, do not depend on the other positions
+ARC_TOL_DEG = 0.3
+#: [deg] hull vertices beside a line's tangent vertex that may still be the position's skyline
+#: are those it sees at most this far below the tangent vertex ...
+ALT_DELTA_DEG = 1.0
+#: ... and at most ``LATERAL_SLOPE * e * (1/d_t + 1/d_i)`` [rad] below it, ``e`` [m] the line's
+#: offset from the position, ``d_t``, ``d_i`` the two distances: how much lower or higher the
+#: position's own ray may see each of them on terrain that slopes this steeply across the line
+LATERAL_SLOPE = 0.5
 
 
 def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows: int, cols: int,
                 *, camera_height_m: float = 1.5, planet=None, azimuth_bins: int = 360,
                 skip_tol_deg: float = 0.001, near_m: float = NEAR_M,
                 line_spacing_m: float | None = None, window_m: float | None = None,
-                rising_m: float = RISING_M) -> HorizonBatch:
+                rising_m: float = RISING_M, arc_tol_deg: float = ARC_TOL_DEG,
+                alt_delta_deg: float = ALT_DELTA_DEG,
+                lateral_slope: float = LATERAL_SLOPE) -> HorizonBatch:
     """Skylines of a regular grid of positions (row-major, north to south, west to east).
 
     x_west, y_north : [m] the first position (row 0, column 0) in the DEM's CRS
@@ -91,6 +121,10 @@ def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows:
         DEM cell, at least :data:`WINDOW_M`)
     rising_m : [m] a ray whose near-field maximum is at ``near_m`` (still rising) is traced
         exactly out to this distance
+    arc_tol_deg : [deg] how far below a line's concave pieces the chords between its samples may
+        lie, seen from ``near_m`` away (:data:`ARC_TOL_DEG`; 0: crossings and crests only)
+    alt_delta_deg, lateral_slope : which hull vertices beside a line's tangent vertex also get an
+        exact window (:data:`ALT_DELTA_DEG`, :data:`LATERAL_SLOPE`; 0: none)
 
     Rays run to the DEM edge (no maximum distance). Returns a :class:`HorizonBatch` as
     :func:`~skyfix.horizon.render_horizons` does, with ``skyline_distance_m``. Memory: three float32
@@ -111,6 +145,11 @@ def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows:
                     ("rising distance", rising_m)):
         if not (v > 0 and math.isfinite(v)):
             raise ParameterError(f"{name} must be > 0 m, got {v}")
+    if not (0 <= arc_tol_deg < 90):
+        raise ParameterError(f"arc tolerance must be in [0, 90) deg, got {arc_tol_deg}")
+    if not (0 <= alt_delta_deg < 90 and 0 <= lateral_slope < np.inf):
+        raise ParameterError(f"alternates need 0 <= delta < 90 deg and a slope >= 0, got "
+                             f"{alt_delta_deg}, {lateral_slope}")
     rows, cols = int(rows), int(cols)
     xs = x_west + np.arange(cols) * float(spacing_m)
     ys = y_north - np.arange(rows) * float(spacing_m)
@@ -129,112 +168,10 @@ def render_grid(dem: Dem, x_west: float, y_north: float, spacing_m: float, rows:
     _sweep_grid(dem.z, data, offs, prows, pcols, dem.x0, dem.y0, dem.dx, dem.dy, x, y,
                 float(camera_height_m), np.sin(az), np.cos(az), planet.curvature_coeff,
                 math.tan(math.radians(skip_tol_deg)), T_MIN_M, float(near_m), float(rising_m), ls,
-                win, elev, length, ground, dist)
+                win, math.tan(math.radians(arc_tol_deg)), math.tan(math.radians(alt_delta_deg)),
+                float(lateral_slope), elev, length, ground, dist)
     return HorizonBatch(x, y, np.ascontiguousarray(elev.T), np.ascontiguousarray(length.T), ground,
                         float(camera_height_m), float(np.inf), planet, np.ascontiguousarray(dist.T))
-
-
-@njit(cache=True, nogil=True)
-def _line_span(uc, vc, us, vs, nx, ny):
-    """The along-line interval [s_in, s_out] [m] inside the DEM's pixel-centre hull for the line
-    u = uc + us s, v = vc + vs s (index space); s_in > s_out when the line misses the DEM."""
-    lo = -np.inf
-    hi = np.inf
-    for c, d, top in ((uc, us, nx - 1.0), (vc, vs, ny - 1.0)):
-        if d == 0.0:
-            if c < 0.0 or c > top:
-                return 1.0, 0.0
-        else:
-            s0 = (0.0 - c) / d
-            s1 = (top - c) / d
-            lo = max(lo, min(s0, s1))
-            hi = min(hi, max(s0, s1))
-    return lo, hi
-
-
-@njit(cache=True, nogil=True)
-def _crossings(c, d, s_a):
-    """Where the coordinate ``c + d s`` crosses whole numbers around ``s_a`` [m]: the last
-    crossing at or before it, the next one after it, and the step between crossings (-inf, inf,
-    inf when the line runs along the axis)."""
-    if d == 0.0:
-        return -np.inf, np.inf, np.inf
-    k = math.floor(c + d * s_a) if d > 0 else math.ceil(c + d * s_a)
-    return (k - c) / d, (k + (1.0 if d > 0 else -1.0) - c) / d, abs(1.0 / d)
-
-
-@njit(cache=True, nogil=True)
-def _line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w):
-    """Terrain along a line from the grid-line crossing at or before ``s_a`` (not before the
-    DEM entry ``s_in``) to ``s_b``, ascending: out_s [m] and ``w = z - curv s**2`` [m], at every
-    grid-line crossing (the bilinear surface's kinks), at both ends, and at the top of every
-    crossing-to-crossing piece that bulges upward (inside a cell the surface along a line is the
-    parabola ``h + b s + e us vs s**2``: a ridge crossing a cell diagonally crests between the
-    crossings, metres above both). Starting on a crossing makes the samples past any point the
-    same whichever queries asked for the line. Samples over nodata are left out. Returns the
-    count."""
-    ny, nx = z.shape
-    cap = out_s.shape[0]
-    s0u, ku, step_u = _crossings(uc, us, s_a)
-    s0v, kv, step_v = _crossings(vc, vs, s_a)
-    s0 = max(s_in, s0u, s0v)
-    s_a = min(s0, s_a)
-    s = s_a
-    h0 = bilinear(z, uc + us * s, vc + vs * s)
-    n = 0
-    if math.isfinite(h0):
-        out_s[0] = s
-        out_w[0] = h0 - curv * s * s
-        n = 1
-    uv = us * vs
-    # A line that enters the DEM beside the grid starts on the hull's edge, a grid line: rounding
-    # can put the "next" crossing on the start itself, a piece of length 0 (no crest to look for).
-    while s < s_b and n < cap - 2:
-        nxt = min(ku, kv, s_b)
-        if ku <= nxt:
-            ku += step_u
-        if kv <= nxt:
-            kv += step_v
-        h1 = bilinear(z, uc + us * nxt, vc + vs * nxt)
-        if uv != 0.0 and nxt > s and math.isfinite(h0) and math.isfinite(h1):
-            mid = 0.5 * (s + nxt)
-            j = min(max(int(math.floor(uc + us * mid)), 0), nx - 2)
-            i = min(max(int(math.floor(vc + vs * mid)), 0), ny - 2)
-            q = (z[i, j] - z[i, j + 1] - z[i + 1, j] + z[i + 1, j + 1]) * uv
-            if q < 0.0:  # concave: its vertex, if inside the piece
-                d = nxt - s
-                b = (h1 - h0) / d - q * d
-                x = -b / (2.0 * q)
-                if 0.0 < x < d:
-                    sv = s + x
-                    out_s[n] = sv
-                    out_w[n] = h0 + b * x + q * x * x - curv * sv * sv
-                    n += 1
-        if math.isfinite(h1):
-            out_s[n] = nxt
-            out_w[n] = h1 - curv * nxt * nxt
-            n += 1
-        s = nxt
-        h0 = h1
-    return n
-
-
-@njit(cache=True, nogil=True)
-def _tangent_vertex(hs, hw, top, qs, qw):
-    """Index of the upper-hull vertex with the steepest slope from (qs, qw), which lies left of
-    every vertex. The hull is hs/hw[0..top], its leftmost vertex at ``top``: slopes from the query
-    rise then fall along it, so a binary search finds the peak."""
-    lo = 0  # count from the left: vertex j is hs[top - j]
-    hi = top
-    while lo < hi:
-        mid = (lo + hi) // 2
-        i = top - mid
-        # rising where the next edge is steeper than the sight line to this vertex
-        if (hw[i - 1] - hw[i]) * (hs[i] - qs) > (hw[i] - qw) * (hs[i - 1] - hs[i]):
-            lo = mid + 1
-        else:
-            hi = mid
-    return top - lo
 
 
 @njit(cache=True, nogil=True)
@@ -301,7 +238,8 @@ def _window(z, u0, v0, us, vs, zc, curv, lo, hi, near, t_end):
 
 @njit(cache=True, parallel=True, nogil=True)
 def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, caz, curv, tol,
-                t_min, near, rising, ls, win, out_el, out_len, out_ground, out_dist):
+                t_min, near, rising, ls, win, arc_tol, alt_td, alt_slope, out_el, out_len,
+                out_ground, out_dist):
     ny, nx = z.shape
     n = xs.shape[0]
     nb = saz.shape[0]
@@ -310,7 +248,7 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
         g = bilinear(z, (xs[k] - x0) / dx, (y0 - ys[k]) / dy)
         out_ground[k] = g
         zc[k] = g + h
-    cap = 8 * (nx + ny) + 16  # crossings and crests of the longest line
+    cap = (8 + 2 * ARC_MAX) * (nx + ny) + 16  # crossings, crests and arcs of the longest line
     for b in prange(nb):
         sa = saz[b]
         ca = caz[b]
@@ -346,6 +284,9 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
         qa = a[order]
         qw = zc[order] - curv * qa * qa
         cand = np.full((n, 2), np.nan)  # per position (grid order): the two lines' answers
+        use_alt = alt_td > 0.0 and alt_slope > 0.0
+        alt = np.full((n if use_alt else 0, 4), np.nan)  # and their alternates
+        cl = np.empty(6)
         buf_s = np.empty(cap)
         buf_w = np.empty(cap)
         hs = np.empty(cap)
@@ -376,11 +317,12 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
             ly = y0 - om * sa
             uc = (lx - x0) / dx
             vc = (y0 - ly) / dy
-            s_in, s_out = _line_span(uc, vc, us, vs, nx, ny)
+            s_in, s_out = line_span(uc, vc, us, vs, nx, ny)
             s_a = max(s_in, qa[q[nq - 1]] + near)
             if s_a >= s_out:
                 continue
-            ns = _line_samples(z, uc, vc, us, vs, s_a, s_in, s_out, curv, buf_s, buf_w)
+            ns = line_samples(z, uc, vc, us, vs, s_a, s_in, s_out, curv, buf_s, buf_w, arc_tol,
+                               near)
             top = -1
             p = ns - 1
             for j in range(nq):
@@ -399,8 +341,12 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
                     p -= 1
                 if top < 0:
                     continue
-                v = _tangent_vertex(hs, hw, top, qa[r], qw[r])
+                v = tangent_vertex(hs, hw, top, qa[r], qw[r])
                 cand[order[r], qslot[j]] = hs[v] - qa[r]
+                if use_alt:
+                    alternates(hs, hw, top, v, qa[r], qw[r], 2.0 * curv * qa[r], alt_td,
+                                alt_slope * abs(o[order[r]] - om), win, alt, order[r],
+                                2 * qslot[j])
         # Each position's own ray, in grid order (the outputs are written in sequence): the exact
         # near field, and exact windows around the candidates.
         for k in range(n):
@@ -428,27 +374,34 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
                 rising_near = False
             # A line that ran on past this (long) ray's end saw its skyline on terrain the ray
             # never reaches: the ray's own maximum is then most likely near its end.
-            if c0 > t_end:
-                c0 = t_end - win
-            if c1 > t_end:
-                c1 = t_end - win
-            if not math.isfinite(c0):
-                c0, c1 = c1, np.nan
-            elif math.isfinite(c1):
-                if c1 < c0:
-                    c0, c1 = c1, c0
-                if c1 - c0 <= 2.0 * win:  # one window covers both
-                    v, tv = _window(z, u0, v0, us, vs, zc[k], curv, c0 - win, c1 + win, near,
-                                    t_end)
+            # Windows around the candidates (and their alternates, unless the lines said nothing
+            # of this ray), sorted, overlapping ones traced as one.
+            nc = 0
+            for jc in range(6 if use_alt and (math.isfinite(c0) or math.isfinite(c1)) else 2):
+                c = c0 if jc == 0 else c1 if jc == 1 else alt[k, jc - 2]
+                if not math.isfinite(c):
+                    continue
+                if c > t_end:
+                    c = t_end - win
+                ic = nc
+                while ic > 0 and cl[ic - 1] > c:
+                    cl[ic] = cl[ic - 1]
+                    ic -= 1
+                cl[ic] = c
+                nc += 1
+            if nc > 0:
+                lo = cl[0] - win
+                hi = cl[0] + win
+                for ic in range(1, nc + 1):
+                    if ic < nc and cl[ic] - win <= hi:
+                        hi = cl[ic] + win
+                        continue
+                    v, tv = _window(z, u0, v0, us, vs, zc[k], curv, lo, hi, near, t_end)
                     if v > best:
                         best, tb = v, tv
-                    c0 = c1 = np.nan
-            for c in (c0, c1):
-                if math.isfinite(c):
-                    v, tv = _window(z, u0, v0, us, vs, zc[k], curv, c - win, c + win, near,
-                                    t_end)
-                    if v > best:
-                        best, tb = v, tv
+                    if ic < nc:
+                        lo = cl[ic] - win
+                        hi = cl[ic] + win
             if rising_near and t_end > near:
                 # Still climbing at the near field's end (a slope whose crest lies beyond, where
                 # lines a few metres to the side see another slope): exact on to ``rising``, where
@@ -461,4 +414,4 @@ def _sweep_grid(z, pdata, poffs, prows, pcols, x0, y0, dx, dy, xs, ys, h, saz, c
             out_dist[b, k] = tb if best > -np.inf else np.nan
 
 
-__all__ = ["render_grid", "NEAR_M", "WINDOW_M"]
+__all__ = ["render_grid", "NEAR_M", "WINDOW_M", "ARC_TOL_DEG", "ALT_DELTA_DEG", "LATERAL_SLOPE"]
