@@ -776,3 +776,26 @@ def test_antialiased_edge_carries_the_subpixel_row():
     after = np.sum(1 - img[..., 0], axis=0)
     np.testing.assert_allclose(after, H - 0.5 - r, atol=1e-9)
     assert np.max(np.abs(before - (H - 0.5 - r))) > 0.4  # point sampling alone misses it
+
+
+def test_default_cases_keep_their_margin_from_the_dems_data_not_only_its_grid():
+    """A reprojected DEM's corners hold no terrain: the default area's margin (10 cells or 5 % of
+    the extent) is kept from where the heights end, as on a DEM without corners (the example
+    report's cases had stood 68 m from the end of the Sierra's terrain)."""
+    from skyfix.dem import fractal_dem
+    from skyfix.nearest import nearest_valid
+    from skyfix.simulate import plan_set
+    from skyfix.simulate.sets import default_margin
+
+    full = fractal_dem(200, 30.0, seed=4)
+    rows, cols = np.mgrid[0:200, 0:200]
+    z = np.where(rows + cols < 120, np.nan, full.z)  # a wedge 2.5 km deep in the north-west corner
+    dem = Dem(z, full.x0, full.y0, full.dx, full.dy, full.crs_wkt, full.crs_name)
+    margin = default_margin(dem)
+    assert margin == pytest.approx(300.0)  # 5 % of 6 km
+    dist2, _, _ = nearest_valid(~np.isfinite(dem.z))  # to the nearest cell without a height
+    for name in ("REF", "HREL"):
+        for c in plan_set(dem, name, 60, 3):
+            col, row = dem.xy_to_colrow(c["truth"].x, c["truth"].y)
+            d = math.sqrt(dist2[int(round(row)), int(round(col))]) * dem.dx
+            assert d > 0.95 * margin, (name, d)

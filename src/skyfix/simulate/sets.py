@@ -40,12 +40,19 @@ SETS = {
 MAP_ERROR_SETS = {"DEMERR"}
 
 
-def default_area(dem: Dem, margin_m: float | None = None) -> tuple[float, float, float, float]:
-    """The DEM's bounds minus a margin [m] (default: 10 cells or 5 % of the extent, the larger)."""
+def default_margin(dem: Dem, margin_m: float | None = None) -> float:
+    """[m] how far the default area keeps from the DEM's edge: 10 cells or 5 % of the extent, the
+    larger, at most a quarter of it."""
     xmin, ymin, xmax, ymax = dem.bounds
     ext = min(xmax - xmin, ymax - ymin)
     m = max(10 * dem.cell_m, 0.05 * ext) if margin_m is None else float(margin_m)
-    m = min(m, 0.25 * ext)
+    return min(m, 0.25 * ext)
+
+
+def default_area(dem: Dem, margin_m: float | None = None) -> tuple[float, float, float, float]:
+    """The DEM's bounds minus :func:`default_margin` [m]."""
+    xmin, ymin, xmax, ymax = dem.bounds
+    m = default_margin(dem, margin_m)
     return (xmin + m, ymin + m, xmax - m, ymax - m)
 
 
@@ -65,14 +72,22 @@ def _check_area(dem: Dem, area) -> tuple[float, float, float, float]:
     return xmin, ymin, xmax, ymax
 
 
-def _draw_positions(dem: Dem, area, n: int, rng: np.random.Generator) -> np.ndarray:
+def _draw_positions(dem: Dem, area, n: int, rng: np.random.Generator,
+                    clear_m: float = 0.0) -> np.ndarray:
+    """n positions [m] with heights in ``area``; with ``clear_m`` [m], also heights 8 points
+    around each at that distance: the default area keeps its margin from the DEM's data, not only
+    from its grid's edge, where a reprojected DEM's corners hold none (its cases had stood 68 m
+    from the end of the terrain)."""
     xmin, ymin, xmax, ymax = area
+    a = np.radians(np.arange(0.0, 360.0, 45.0))
+    ring = 0.999 * clear_m * np.stack([np.sin(a), np.cos(a)], 1)  # within the grid on a full one
     pts = []
     for _ in range(200 * n + 100):
         if len(pts) >= n:
             break
         x, y = rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)
-        if np.isfinite(dem.height_at(x, y)):
+        if np.isfinite(dem.height_at(x, y)) and (
+                clear_m <= 0 or np.isfinite(dem.height_at(x + ring[:, 0], y + ring[:, 1])).all()):
             pts.append((x, y))
     if len(pts) < n:
         raise ParameterError("could not draw positions with known heights in the area: the DEM is "
@@ -93,17 +108,18 @@ def plan_set(dem: Dem, name: str, cases: int, seed: int, *, area=None, camera: s
         raise ParameterError(f"cases must be a positive whole number, got {cases}")
     cases = int(cases)
     seed = check_seed(seed)
+    clear = default_margin(dem) if area is None else 0.0
     area = _check_area(dem, area)
     rng = np.random.default_rng([int(seed), sum(map(ord, key))])
     pl = resolve_planet(planet, getattr(dem, "body", None))
     cam = get_camera(camera) if isinstance(camera, str) else camera
     if key == "HREL":
-        pool = _draw_positions(dem, area, 6 * cases, rng)
+        pool = _draw_positions(dem, area, 6 * cases, rng, clear)
         hb = render_horizons(dem, pool[:, 0], pool[:, 1], camera_height_m=camera_height_m, planet=pl)
         relief = np.nanmax(hb.elevation_deg, axis=1) - np.nanmin(hb.elevation_deg, axis=1)
         pos = pool[np.argsort(relief, kind="stable")[:cases]]
     else:
-        pos = _draw_positions(dem, area, cases, rng)
+        pos = _draw_positions(dem, area, cases, rng, clear)
     plans = []
     for k in range(cases):
         x, y = float(pos[k, 0]), float(pos[k, 1])
