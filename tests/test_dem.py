@@ -563,3 +563,15 @@ def test_a_source_collar_stays_outside_once_reprojected(tmp_path):
     assert has[inside & core[ri, ci]].all()
     # cropped to the strip, which spans 80 % of the raster's 200 rows (18.5 km north to south)
     assert 0.78 * 18_530 < dem.z.shape[0] * dem.dy < 0.85 * 18_530
+
+
+@pytest.mark.parametrize("crs, step", [("EPSG:4326", 0.001), ("EPSG:32611", 30.0)])
+def test_a_raster_of_no_data_alone_is_refused(tmp_path, crs, step):
+    """Reprojected, it had died in OpenCV's convex hull (a traceback) before the refusal."""
+    from rasterio.transform import from_origin
+
+    origin = (8.0, 46.2) if crs == "EPSG:4326" else (500_000.0, 4_000_000.0)
+    path = _write_tif(tmp_path / "none.tif", np.full((20, 20), np.nan, np.float32),
+                      from_origin(*origin, step, step), crs, np.nan)
+    with pytest.raises(DemError, match="no valid heights"):
+        load_dem(path)

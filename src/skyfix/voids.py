@@ -44,10 +44,13 @@ def collar_cells(void: np.ndarray) -> np.ndarray:
     """The void cells outside the convex hull of the valid ones: a raster's no-data collar (a
     map-projected HiRISE DTM's, the wedges of a grid written by gdalwarp), around the data rather
     than a hole in it. A void with data on both sides (an SRTM tile's, even one on the tile's
-    edge) lies inside the hull."""
+    edge) lies inside the hull. None where there is no void, or no valid cell to hull (a raster
+    of no-data alone, which :func:`fill_voids` refuses)."""
     import cv2
 
     has = ~void
+    if has.all() or not has.any():
+        return np.zeros(void.shape, bool)
     rows = np.flatnonzero(has.any(axis=1))
     first = np.argmax(has[rows], axis=1)
     last = has.shape[1] - 1 - np.argmax(has[rows, ::-1], axis=1)

@@ -292,8 +292,7 @@ def _check_dem_grid(db, dem, db_path, dem_path) -> None:
     crop cut, which no later check would notice (the file's checksum is the same)."""
     rec = db.attrs.get("dem") or {}
     shape, bounds = rec.get("shape"), rec.get("bounds")
-    if (not shape or not bounds or rec.get("sha256") != getattr(dem, "checksum", None)
-            or not hasattr(dem, "bounds")):
+    if not shape or not bounds or rec.get("sha256") != getattr(dem, "checksum", None):
         return
     if list(shape) == list(dem.shape) and all(abs(a - b) < 1e-3 for a, b in zip(bounds, dem.bounds)):
         return
