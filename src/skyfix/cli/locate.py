@@ -1,4 +1,4 @@
-"""``skyfix locate`` and ``skyfix heading``: the board segment's answer.
+"""``skyfix locate``: the board segment's answer, position, heading and attitude.
 
 Imports stay light at module level (the locate process must fit in 256 MB): numpy, the DEM
 loader, the database and matplotlib are imported only when used.
@@ -6,52 +6,14 @@ loader, the database and matplotlib are imported only when used.
 
 from __future__ import annotations
 
-import sys
-
 import click
 
 from ..errors import ParameterError
 from ..progress import stage
+from .acqinput import (check_detector, check_source, detector_used, input_files, read_acquisition,
+                       read_profile)
 from .main import note
-from .options import camera_height, check_point_options, dem_sigma, detector_option, point_xy
-
-
-def _check_source(acq_dir, profile_path):
-    """Exactly one of ACQ_DIR and --profile (checked before any work)."""
-    if acq_dir is not None and profile_path is not None:
-        raise ParameterError(f"give an acquisition folder ({acq_dir}) or --profile ({profile_path}), "
-                             "not both: the profile would be used and the folder ignored")
-    if acq_dir is None and profile_path is None:
-        raise ParameterError("give an acquisition folder or --profile PROFILE.json")
-
-
-def _check_detector(profile_path, detector):
-    if profile_path is not None and detector is not None:
-        raise ParameterError(f"--detector {detector} says how an acquisition's images are detected, "
-                             f"and the profile {profile_path} holds none: give the acquisition "
-                             "folder instead, or drop --detector")
-
-
-def _detector_used(profile_path, detector):
-    """The detection method a result's skylines came from (None: from a --profile)."""
-    from ..detect.options import DEFAULT_METHOD
-
-    return None if profile_path is not None else (detector or DEFAULT_METHOD)
-
-
-def _read_acquisition(acq_dir):
-    """The acquisition's description (no image read), once per run; None with a --profile."""
-    if acq_dir is None:
-        return None
-    from ..formats import load_acquisition
-
-    return load_acquisition(acq_dir)
-
-
-def _input_files(acq, profile_path, dem_paths) -> list:
-    """The files a locate or heading run reads (the acquisition's own, the profile, the DEMs): no
-    output may replace one of them."""
-    return [profile_path, *(dem_paths or ()), *(acq.files() if acq is not None else ())]
+from .options import check_point_options, dem_sigma, detector_option, point_xy
 
 
 def _check_prior_area(db, dem, prior, radius_m) -> None:
@@ -74,45 +36,6 @@ def _check_prior_area(db, dem, prior, radius_m) -> None:
                 f"{xs.min():.1f}..{xs.max():.1f}, y {ys.min():.1f}..{ys.max():.1f}")
     elif dem is not None:
         dem.require_inside(np.array([prior[0]]), np.array([prior[1]]), "prior position")
-
-
-def _read_profile(acq, profile_path, frames=None, detector=None, db=None):
-    """Profile from ``--profile`` JSON, else from the acquisition ``acq`` (:func:`_read_acquisition`;
-    one of the two, as :func:`_check_source` made sure), its images detected with
-    ``detector`` (a method name; None: the default) into the database ``db``'s azimuth bins
-    (:func:`~skyfix.profile.profile_bins`); with the attitude prior (pitch, roll) [deg]
-    and the camera height [m] (None when the profile does not say). ``frames``, a list, receives
-    each frame's detected rows (:class:`~skyfix.pose.image_plane.FrameRows`) when the profile
-    comes from frames."""
-    from ..formats import read_profile_json
-
-    if profile_path is not None:
-        # the reader validates frame, attitude_prior and camera_height_m, naming the field
-        prof = read_profile_json(profile_path, frame="body")
-        prior = prof.meta.get("attitude_prior") or {}
-        return prof, prior.get("pitch_deg", 0.0), prior.get("roll_deg", 0.0), \
-            prof.meta.get("camera_height_m")
-    import numpy as np
-
-    from ..profile import acquisition_profile, profile_bins
-
-    azimuth_bins = profile_bins(db)
-    n = len(acq.frames) or 1
-    with stage(f"skyline detected and profiled ({n} image{'s' * (n > 1)})") as st:
-        if frames is not None and acq.frames and acq.panorama is None:
-            from ..pose.image_plane import frames_from_acquisition
-            from ..profile import detect_frames
-
-            skylines = detect_frames(acq, detector)
-            frames.extend(frames_from_acquisition(acq, skylines))
-            prof = acquisition_profile(acq, skylines=skylines, azimuth_bins=azimuth_bins)
-        else:
-            prof = acquisition_profile(acq, detector=detector, azimuth_bins=azimuth_bins)
-        used = prof.meta.get("frames_used")
-        obs = int(np.isfinite(prof.elevation_deg).sum())
-        st.result = (f"{used} of {n} images with a skyline, " if used is not None else "") + \
-            f"{obs} of {prof.elevation_deg.size} azimuth bins observed"
-    return prof, acq.prior_pitch_deg, acq.prior_roll_deg, acq.camera_height_m
 
 
 def _check_db_dem(db, dem, db_path, dem_path, force) -> list[str]:
@@ -281,8 +204,8 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
 
     # Everything that can be refused is refused before the search (minutes) and before any
     # output is written.
-    _check_source(acq_dir, profile_path)
-    _check_detector(profile_path, detector)
+    check_source(acq_dir, profile_path)
+    check_detector(profile_path, detector)
     check_point_options(prior_x, prior_y, prior_lon, prior_lat, xname="--prior-x", yname="--prior-y",
                         lonname="--prior-lon", latname="--prior-lat", required=False)
     have_prior = prior_x is not None or prior_lon is not None
@@ -302,10 +225,10 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     if score_map is not None and db_path is None:
         raise ParameterError("--score-map needs --db (the map is the database's score)")
     dem_sigma_m = dem_sigma(dem_sigma_m)
-    acq = _read_acquisition(acq_dir)
+    acq = read_acquisition(acq_dir)
     check_outputs(overwrite, ("--output", out, None), ("--geojson", geojson, None),
                   ("--score-map", score_map, GEOTIFF_SUFFIXES), ("--plot", plot, PLOT_FORMATS),
-                  inputs=_input_files(acq, profile_path, dem_paths))
+                  inputs=input_files(acq, profile_path, dem_paths))
     # The database and the DEM are opened and checked against each other, and the acquisition's
     # description read, before any image is (detection is the long part).
     db = dem = None
@@ -331,7 +254,7 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     frames = []  # the frames' detected rows: a narrow view's attitude is also solved in the image
     # the profile in the database's bins: a store of 90 bins made a 360-bin profile it then
     # refused, after detection
-    prof, pp, pr, cam_h = _read_profile(acq, profile_path, frames, detector, db)
+    prof, pp, pr, cam_h = read_profile(acq, profile_path, frames, detector, db)
     if profile_path is not None:
         notes += _check_camera_height(db, db_path, cam_h)
     from ..match import PRESETS
@@ -352,7 +275,7 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
                       options={"preset": preset, "prior_xy": list(prior) if prior else None,
                                "prior_radius_m": prior_radius_m, "force": force,
                                "camera_height_m": cam_h, "dem_sigma_m": dem_sigma_m,
-                               "detector": _detector_used(profile_path, detector)},
+                               "detector": detector_used(profile_path, detector)},
                       estimated=["x", "y", "heading_deg"] + ([] if dem is None else ["pitch_deg", "roll_deg"]),
                       echoed=[] if dem is not None else ["pitch_deg", "roll_deg"],
                       convergence_deg=fix.meridian_convergence_deg)
@@ -366,123 +289,3 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
              f"north, confidence {fix.confidence:.2f} -> {out}")
 
 
-@click.command("heading")
-@click.argument("acq_dir", required=False, type=click.Path(file_okay=False))
-@click.option("--profile", "profile_path", type=click.Path(dir_okay=False),
-              help="Body-frame profile JSON instead of an acquisition folder.")
-@click.option("--dem", "dem_paths", required=True, multiple=True, type=click.Path(dir_okay=False),
-              help="DEM (repeat it for a stack of DEMs of one place).")
-@click.option("--x", "x", type=float, help="Rough position x [m] in the work CRS.")
-@click.option("--y", "y", type=float, help="Rough position y [m].")
-@click.option("--lon", type=float, help="Rough longitude [deg] on the DEM's body, instead of --x/--y.")
-@click.option("--lat", type=float, help="Rough latitude [deg].")
-@click.option("--heading-prior-deg", type=float,
-              help="Heading prior [deg], clockwise from true north (from grid north with "
-                   "--prior-north grid). Without one, the full circle is searched.")
-@click.option("--prior-north", type=click.Choice(["true", "grid"]), default="true", show_default=True,
-              help="Which north the heading prior is measured from.")
-@click.option("--window-deg", default=10.0, show_default=True, type=float,
-              help="Search +/- this around the prior [deg] (180 without a prior).")
-@click.option("--camera-height-m", type=float, callback=camera_height,
-              help="Camera height [m] (default: the acquisition's).")
-@click.option("--position-sigma-m", type=float, default=None,
-              help="How far the rough position may be off [m]: skylines near enough for that to "
-                   "move them by degrees weigh less; 0: every bin alike [default: 10].")
-@click.option("--dem-sigma-m", type=float, default=None,
-              help="The DEM's height error (rms) [m] against the terrain the camera sees, which the "
-                   "sigmas of a narrow view (one frame) allow for; 0: the DEM is the world "
-                   "[default: 2].")
-@detector_option
-@click.option("-o", "--out", "--output", "out", type=click.Path(dir_okay=False),
-              help="Heading JSON (default stdout).")
-@click.option("--overwrite", is_flag=True, help="Replace an existing output.")
-def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg, prior_north,
-            window_deg, camera_height_m, position_sigma_m, dem_sigma_m, detector, out, overwrite):
-    """Find the heading only, from a rough position."""
-    import math
-
-    import numpy as np
-
-    from .._io import check_outputs, to_json, write_json
-    from ..stack import load_dems
-    from ..north import grid_heading_from_true, meridian_convergence_deg
-    from ..pose import at_window_edge, estimate_heading
-
-    _check_source(acq_dir, profile_path)
-    _check_detector(profile_path, detector)
-    if heading_prior_deg is None:  # no prior: the whole circle
-        heading_prior_deg, window_deg = 0.0, 180.0
-    check_point_options(x, y, lon, lat)
-    if not math.isfinite(heading_prior_deg):
-        raise ParameterError(f"--heading-prior-deg must be a finite number, got {heading_prior_deg}")
-    if not (math.isfinite(window_deg) and 0 < window_deg <= 180):
-        raise ParameterError(f"--window-deg must be within (0, 180] deg, got {window_deg}")
-    if position_sigma_m is None:
-        from ..pose.heading import HEADING_POSITION_SIGMA_M as position_sigma_m
-    if not (math.isfinite(position_sigma_m) and position_sigma_m >= 0):
-        raise ParameterError(f"--position-sigma-m must be a finite number of metres >= 0, got "
-                             f"{position_sigma_m}")
-    dem_sigma_m = dem_sigma(dem_sigma_m)
-    acq = _read_acquisition(acq_dir)
-    check_outputs(overwrite, ("--output", out, None),
-                  inputs=_input_files(acq, profile_path, dem_paths))
-    # the DEM and the position are checked before any image is read (detection is the long part)
-    dem_path = " + ".join(dem_paths)
-    dem = load_dems(list(dem_paths))
-    x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
-    # a position given as lon/lat is named so: the x/y it became mean nothing to its giver
-    dem.require_inside(np.array([x]), np.array([y]), "rough position" if lon is None else
-                       f"rough position lon {lon:g}, lat {lat:g}, which is")
-    frames = []  # the frames' detected rows: a narrow view is also solved in the image plane
-    prof, pp, pr, cam_h = _read_profile(acq, profile_path, frames, detector)
-    h = camera_height_m if camera_height_m is not None else (cam_h if cam_h is not None else 1.5)
-    conv = meridian_convergence_deg(dem.crs_wkt, x, y)
-    if prior_north == "true" and not math.isfinite(conv) and window_deg < 180:
-        note(f"warning: {dem_path} has no CRS that says where true north is: the heading "
-             "prior is taken from grid north")
-    grid_prior = (grid_heading_from_true(heading_prior_deg, conv) if prior_north == "true"
-                  else heading_prior_deg)
-    hf = estimate_heading(prof, dem, x, y, grid_prior, window_deg, camera_height_m=h,
-                          prior_pitch_deg=pp, prior_roll_deg=pr, frames=frames,
-                          dem_sigma_m=dem_sigma_m, position_sigma_m=position_sigma_m)
-    if window_deg < 180 and at_window_edge(hf.grid_heading_deg, grid_prior, window_deg):
-        note(f"warning: the heading {hf.heading_deg:.1f} deg is on the edge of the window "
-             f"{heading_prior_deg:g} +- {window_deg:g} deg: the best match lies outside it "
-             "(confidence capped); check the prior or widen --window-deg")
-    from .provenance import provenance
-
-    d = hf.to_dict()
-    d["provenance"] = provenance(
-        acq_dir=acq_dir, profile_path=profile_path, dem=dem, dem_path=dem_path, profile=prof,
-        options={"heading_prior_deg": heading_prior_deg, "prior_north": prior_north,
-                 "window_deg": window_deg, "camera_height_m": h, "dem_sigma_m": dem_sigma_m,
-                 "position_sigma_m": position_sigma_m,
-                 "detector": _detector_used(profile_path, detector)},
-        estimated=["heading_deg", "pitch_deg", "roll_deg"], echoed=["x", "y"],
-        convergence_deg=hf.meridian_convergence_deg)
-    if out is not None:
-        write_json(out, d)
-        # as locate -o ends: what was found and where it went (the JSON is in the file)
-        note(f"heading {hf.heading_deg:.2f} deg from true north +- {hf.heading_sigma_deg:.2f}, "
-             f"pitch {hf.pitch_deg:.2f}, roll {hf.roll_deg:.2f}, confidence {hf.confidence:.2f} "
-             f"-> {out}")
-    else:
-        click.echo(to_json(d, indent=1))
-    sys.stdout.flush()
-
-
-def _attitude_command() -> click.Command:
-    """``skyfix attitude``: the heading search read for all three angles. Its JSON is the heading
-    result's: roll, pitch and heading (true north) with their 1-sigmas, which of them the view
-    determines, and the confidence; a single frame is enough (one photograph: the NASA Ames use)."""
-    import copy
-
-    cmd = copy.copy(heading)
-    cmd.name = "attitude"
-    cmd.help = ("Find roll, pitch and heading from one frame (or any acquisition) at a known "
-                "position: their 1-sigmas and which of them the view determines.")
-    cmd.short_help = None
-    return cmd
-
-
-attitude = _attitude_command()
