@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 
 import numpy as np
@@ -799,3 +800,25 @@ def test_default_cases_keep_their_margin_from_the_dems_data_not_only_its_grid():
             col, row = dem.xy_to_colrow(c["truth"].x, c["truth"].y)
             d = math.sqrt(dist2[int(round(row)), int(round(col))]) * dem.dx
             assert d > 0.95 * margin, (name, d)
+
+
+def test_an_area_given_near_the_end_of_the_data_is_drawn_as_given_with_a_warning(caplog):
+    """A user's --area is honoured, but cases within the default margin of where the heights end
+    (their skylines see the terrain stop) are counted in a warning; an area well inside is not."""
+    from skyfix.dem import fractal_dem
+    from skyfix.simulate import plan_set
+    from skyfix.simulate.sets import default_margin
+
+    dem = fractal_dem(200, 30.0, seed=4)
+    xmin, ymin, xmax, ymax = dem.bounds
+    margin = default_margin(dem)
+    edge = (xmin + 1.0, ymin + 1.0, xmin + 100.0, ymax - 1.0)  # a strip along the west edge
+    with caplog.at_level(logging.WARNING, logger="skyfix.simulate"):
+        cases = plan_set(dem, "REF", 5, 1, area=edge)
+    assert all(edge[0] <= c["truth"].x <= edge[2] for c in cases)  # drawn where asked
+    assert any(f"5 of 5 REF cases lie within {margin:.0f} m" in r.getMessage() for r in caplog.records)
+    caplog.clear()
+    inside = (xmin + 2 * margin, ymin + 2 * margin, xmax - 2 * margin, ymax - 2 * margin)
+    with caplog.at_level(logging.WARNING, logger="skyfix.simulate"):
+        plan_set(dem, "REF", 5, 1, area=inside)
+    assert not [r for r in caplog.records if "lie within" in r.getMessage()]

@@ -163,7 +163,7 @@ def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, 
                           overwrite=overwrite, tilt_deg=tilt_deg, pano_size=pano_size,
                           progress=bars_shown(),
                           map_errors=MapErrors() if map_errors else None, world=world)
-    click.echo(f"{len(folders)} cases in {out}")
+    click.echo(f"{len(folders)} case{'s' * (len(folders) != 1)} in {out}")
 
 
 def _check_out(out, overwrite: bool, dem=None) -> None:

@@ -4,6 +4,7 @@ with its set's conditions.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import asdict
 from pathlib import Path
 
@@ -19,6 +20,8 @@ from .acquisition import (PANO_HEIGHT, PANO_WIDTH, check_render_options, check_s
                           simulate_acquisition)
 from .folders import check_out_folder, staged_folder
 from .world import MapErrors, check_world_covers, world_dem, world_record
+
+log = logging.getLogger(__package__)
 
 
 
@@ -95,6 +98,13 @@ def _draw_positions(dem: Dem, area, n: int, rng: np.random.Generator,
     return np.array(pts)
 
 
+def _near_data_edge(dem: Dem, pos: np.ndarray, clear_m: float) -> int:
+    """How many positions [m] have a point without height ``clear_m`` [m] away (8 directions)."""
+    a = np.radians(np.arange(0.0, 360.0, 45.0))
+    ring = 0.999 * clear_m * np.stack([np.sin(a), np.cos(a)], 1)
+    return sum(not np.isfinite(dem.height_at(x + ring[:, 0], y + ring[:, 1])).all() for x, y in pos)
+
+
 def plan_set(dem: Dem, name: str, cases: int, seed: int, *, area=None, camera: str | Camera = "navcam",
              mode: str = "frames", camera_height_m: float = 1.5, planet=None) -> list[dict]:
     """The cases of a named set: per case ``truth`` and the keyword arguments of
@@ -120,6 +130,16 @@ def plan_set(dem: Dem, name: str, cases: int, seed: int, *, area=None, camera: s
         pos = pool[np.argsort(relief, kind="stable")[:cases]]
     else:
         pos = _draw_positions(dem, area, cases, rng, clear)
+    if clear == 0.0:
+        # a user's area is drawn as given, but a case near the end of the DEM's data sees the
+        # terrain stop there (a cliff into nothing), which no real skyline shows
+        margin = default_margin(dem)
+        near = _near_data_edge(dem, pos, margin)
+        if near:
+            log.warning(f"{near} of {len(pos)} {key} cases lie within {margin:.0f} m of where the "
+                        "DEM's heights end (the area given reaches there): their skylines see the "
+                        f"terrain stop; keep the area {margin:.0f} m inside the data for cases like "
+                        "real ones")
     plans = []
     for k in range(cases):
         x, y = float(pos[k, 0]), float(pos[k, 1])
