@@ -48,7 +48,7 @@ def test_quiet_simulate_set_draws_no_progress_bar(hill, tmp_path):
     assert loud.returncode == 0 and "set REF" in loud.stderr, loud.stderr  # the bar, without -q
     r = skyfix("-q", *args, "-o", tmp_path / "quiet")
     assert r.returncode == 0, r.stderr
-    assert r.stderr == "" and "1 cases in" in r.stdout
+    assert r.stderr == "" and "1 case in" in r.stdout
     assert (tmp_path / "quiet" / "case_000" / "acquisition.json").is_file()
 
 
