@@ -398,7 +398,7 @@ def test_a_field_on_every_frame_is_one_warning(tmp_path, caplog):
     d = json.loads((root / "acquisition.json").read_text())
     for i in (1, 2):
         (root / f"f{i}.png").write_bytes(b"placeholder")
-        d["frames"].append({"image": f"f{i}.png", "pan_deg": 40.0 * i})
+        d["frames"].append({"image": f"f{i}.png", "pan_deg": 40.0 * i, "tilt_deg": 0.0})
     for f in d["frames"]:
         f["exposure_ms"] = 10.0
     (root / "acquisition.json").write_text(json.dumps(d))
@@ -694,10 +694,10 @@ def test_acquisition_init_refuses_pans_that_cannot_be(tmp_path, step, msg):
     for k in range(3):
         cv2.imwrite(str(tmp_path / f"f{k}.png"), np.full((48, 64, 3), 120, np.uint8))
     assert_clean_error(run("acquisition-init", tmp_path, "--hfov-deg", 45, "--pan-step-deg", step,
-                           "--camera-height-m", 1.5), msg)
+                           "--camera-height-m", 1.5, "--tilt-deg", 0), msg)
     assert not (tmp_path / "acquisition.json").exists()
     r = run("acquisition-init", tmp_path, "--hfov-deg", 45, "--pan-step-deg", -30,
-            "--camera-height-m", 1.5)
+            "--camera-height-m", 1.5, "--tilt-deg", 0)
     assert r.exit_code == 0, r.output
     assert [f.pan_deg for f in load_acquisition(tmp_path).frames] == [0.0, -30.0, -60.0]
 
@@ -714,7 +714,8 @@ def test_a_panorama_too_large_to_render_is_refused_before_any_work(tmp_path, dem
     ({"camera__fx": 1e-6}, "camera.fx = 1e-06 px gives a field of view of 180.0 deg"),
     ({"camera__fy": 8.0}, "camera.fy = 8 px gives a field of view of 178.2 deg"),
     ({"frame__pan_deg": 1e20}, "frames[0].pan_deg must be within -3600 to 3600"),
-    ({"frames": [{"image": "f.png", "pan_deg": 0.0}, {"image": "f.png", "pan_deg": 30.0}]},
+    ({"frames": [{"image": "f.png", "pan_deg": 0.0, "tilt_deg": 0.0},
+                 {"image": "f.png", "pan_deg": 30.0, "tilt_deg": 0.0}]},
      "frames[1] and frames[0] both name f.png"),
 ])
 def test_a_focal_length_pan_or_frame_that_cannot_be_is_refused(tmp_path, changes, field):
@@ -788,3 +789,37 @@ def test_an_image_too_small_to_search_is_named(tmp_path):
     (tmp_path / "tiny.skyline.json").write_text(json.dumps({"image": "tiny.png", "width": 1,
                                                             "height": 1, "rows": [None]}))
     assert_clean_error(run("evaluate-detect", "--images", tmp_path), "tiny.png: image of 1 x 1 px")
+
+
+def test_a_frame_without_its_tilt_is_refused_not_read_as_level(tmp_path):
+    """A missing tilt_deg was read as 0: on a mast tilted 10-25 deg every skyline moved that far
+    and the attitude solve reported the tilt as roll, 15 deg off at confidence 1.0."""
+    root = write_acq(tmp_path / "acq")
+    d = json.loads((root / "acquisition.json").read_text())
+    del d["frames"][0]["tilt_deg"]
+    (root / "acquisition.json").write_text(json.dumps(d))
+    with pytest.raises(SkyfixError) as e:
+        load_acquisition(root)
+    assert "frames[0]: missing field 'tilt_deg'" in str(e.value)
+
+
+def test_acquisition_init_needs_the_tilt_and_warns_of_a_view_given_in_radians(tmp_path):
+    """--tilt-deg had a default of 0 (a level mast); a field of view or pan step in radians was
+    written without a word."""
+    import cv2
+
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"f{k}.png"), np.full((48, 64, 3), 120, np.uint8))
+    r = run("acquisition-init", tmp_path, "--hfov-deg", 45, "--pan-step-deg", 30, "--camera-height-m", 1.5)
+    assert r.exit_code == 2 and "--tilt-deg" in r.output
+    r = run("acquisition-init", tmp_path, "--hfov-deg", 0.785, "--pan-step-deg", 30,
+            "--camera-height-m", 1.5, "--tilt-deg", 0)
+    assert r.exit_code == 0, r.output
+    assert "was it given in radians (45.0 deg)?" in r.output and "leave gaps" in r.output
+    r = run("acquisition-init", tmp_path, "--hfov-deg", 45, "--pan-step-deg", 0.5236,
+            "--camera-height-m", 1.5, "--tilt-deg", 0, "--overwrite")
+    assert r.exit_code == 0 and "were the pans given in radians?" in r.output
+    r = run("acquisition-init", tmp_path, "--hfov-deg", 45, "--pan-step-deg", 40,
+            "--camera-height-m", 1.5, "--tilt-deg", 10, "--overwrite")
+    assert r.exit_code == 0 and "warning" not in r.output
+    assert [f.tilt_deg for f in load_acquisition(tmp_path).frames] == [10.0] * 3

@@ -11,6 +11,7 @@ import click
 
 from ..errors import ParameterError
 from ..formats.images import imread_whole
+from .main import note
 
 
 def _floats(text, name):
@@ -18,6 +19,26 @@ def _floats(text, name):
         return [float(v) for v in str(text).replace(" ", "").split(",") if v != ""]
     except ValueError:
         raise ParameterError(f"{name} must be comma-separated numbers, got {text!r}") from None
+
+
+def _view_warnings(hfov_deg: float, pans: list) -> list[str]:
+    """What looks like a unit or typing mistake in a camera's field of view and its pans [deg]
+    (written anyway: a user may mean it): a view of under 2 deg (radians given as degrees), and
+    neighbouring images far apart or nearly on top of each other for that view."""
+    out = []
+    if hfov_deg < 2.0:
+        out.append(f"a horizontal field of view of {hfov_deg:.3g} deg: was it given in radians "
+                   f"({math.degrees(hfov_deg):.1f} deg)?")
+    steps = sorted(abs(b - a) for a, b in zip(pans, pans[1:]))
+    if steps:
+        step = steps[len(steps) // 2]
+        if step > 1.5 * hfov_deg:
+            out.append(f"images {step:g} deg apart with a {hfov_deg:.1f} deg view leave gaps between "
+                       "them: check the pans and the field of view")
+        elif step < hfov_deg / 20:
+            out.append(f"images only {step:.3g} deg apart with a {hfov_deg:.1f} deg view nearly "
+                       "overlap: were the pans given in radians?")
+    return out
 
 
 @click.command("acquisition-init")
@@ -31,8 +52,8 @@ def _floats(text, name):
 @click.option("--pan-step-deg", type=float, help="Pan step between consecutive images [deg].")
 @click.option("--pan-start-deg", type=float, default=0.0, show_default=True,
               help="Pan of the first image with --pan-step-deg [deg].")
-@click.option("--tilt-deg", type=float, default=0.0, show_default=True,
-              help="Mast tilt of every image, up positive [deg].")
+@click.option("--tilt-deg", type=float, required=True,
+              help="Mast tilt of every image, up positive [deg]; 0 for a level camera.")
 @click.option("--camera-height-m", type=float, required=True,
               help="Camera centre above the ground [m].")
 @click.option("--distortion", default=None,
@@ -88,6 +109,9 @@ def acquisition_init(folder, images, hfov_deg, focal_px, pan_deg, pan_step_deg, 
     if len(pans) != len(names):
         raise ParameterError(f"{len(pans)} pans for {len(names)} images ({', '.join(names[:4])}"
                              f"{' ...' if len(names) > 4 else ''}): give one pan per image")
+    hfov = math.degrees(2 * math.atan(w / 2 / focal_px))
+    for warning in _view_warnings(hfov, pans):
+        note(f"warning: {warning}")
     dist = Distortion()
     if distortion:
         d = _floats(distortion, "--distortion")
@@ -112,6 +136,6 @@ def acquisition_init(folder, images, hfov_deg, focal_px, pan_deg, pan_step_deg, 
             raise ParameterError(f"{f.image} is not a {w} x {h} image like {names[0]}: one camera, "
                                  "one image size")
     click.echo(f"wrote {path}: {len(names)} images of {w} x {h} px, focal {focal_px:.1f} px "
-               f"(horizontal field of view {math.degrees(2 * math.atan(w / 2 / focal_px)):.1f} deg), "
+               f"(horizontal field of view {hfov:.1f} deg), "
                f"pans {pans[0]:g} .. {pans[-1]:g} deg, tilt {tilt_deg:g} deg, camera "
                f"{camera_height_m:g} m above the ground")

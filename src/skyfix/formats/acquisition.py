@@ -257,9 +257,15 @@ def load_acquisition(folder) -> Acquisition:
             if not isinstance(f, dict) or not isinstance(f.get("image"), str):
                 raise AcquisitionError(f"{where} must be an object with an 'image' file name")
             ignored += known_fields(f, FRAME_FIELDS, where, warn=False)
+            # required, as pan_deg is: a mast is rarely level (navcams look 10-25 deg down), and
+            # a tilt read as 0 put every skyline that far off, the attitude solve taking it for
+            # roll with full confidence
+            if "tilt_deg" not in f:
+                raise AcquisitionError(f"{where}: missing field 'tilt_deg' (the mast's tilt for this "
+                                       "image [deg], up positive; 0 for a level camera)")
             # tilt beyond +-90 deg points the camera backwards over the top, upside down: no
             # mast does that, and 400 is a typing or unit mistake
-            tilt = in_range(number_field(f, "tilt_deg", where, 0.0), -90.0, 90.0, f"{where}.tilt_deg",
+            tilt = in_range(number_field(f, "tilt_deg", where), -90.0, 90.0, f"{where}.tilt_deg",
                              "mast tilt, up positive")
             pan = in_range(number_field(f, "pan_deg", where), -MAX_PAN_DEG, MAX_PAN_DEG,
                            f"{where}.pan_deg", "mast pan, clockwise from forward")
