@@ -510,8 +510,10 @@ def test_a_store_without_the_coarse_index_gets_it_from_the_build_command(dem_pat
         assert f"coarse index added to {9 if lose == 'all' else 1} block" in res.output
         assert open_database(old).has_coarse_index
         assert _files(old) == _files(clean_db)
-    res = CliRunner().invoke(cli, ["build-db", *args])  # now complete: refused as before
-    assert res.exit_code != 0 and "already a complete database" in res.output
+    before = _files(old)
+    res = CliRunner().invoke(cli, ["build-db", *args])  # now complete: nothing to do, success
+    assert res.exit_code == 0 and "already complete, 9 blocks" in res.output, res.output
+    assert _files(old) == before
 
 
 def test_no_coarse_index_where_the_layout_cannot_hold_one(dem_path, tmp_path):
@@ -541,9 +543,11 @@ def test_clear_errors(dem_path, clean_db, tmp_path):
         build_database(dem_path, tmp_path / "b.zarr", BOUNDS, -5, workers=0, progress=False)
     with pytest.raises(ParameterError, match="XMIN <= XMAX"):
         build_database(dem_path, tmp_path / "b.zarr", (500, 300, 300, 490), 10, workers=0)
-    # Existing output: a finished database, a foreign file, a foreign folder.
-    with pytest.raises(OutputExistsError, match="--overwrite"):
-        _build(dem_path, clean_db)
+    # Existing output: a finished database (nothing to do, untouched), a foreign file, a
+    # foreign folder.
+    before = _files(clean_db)
+    r = _build(dem_path, clean_db)
+    assert (r.built, r.resumed_from) == (0, r.n_blocks) and _files(clean_db) == before
     f = tmp_path / "file.zarr"
     f.write_text("not a database")
     with pytest.raises(OutputExistsError, match="--overwrite"):

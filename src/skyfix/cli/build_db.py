@@ -41,7 +41,8 @@ def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_dis
     """Render the skyline at every grid position of BOUNDS from DEM into a zarr store.
 
     Killed at any point, the same command resumes where it stopped (it also redoes built blocks
-    whose data files have gone); --overwrite starts afresh. A grid of more than 1e9 positions or
+    whose data files have gone); run on a complete store it does nothing and succeeds;
+    --overwrite starts afresh. A grid of more than 1e9 positions or
     ~500 GB is refused as a likely typo.
     """
     from .._io import check_folder_output
@@ -57,7 +58,10 @@ def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_dis
     if r.indexed:
         click.echo(f"{r.path}: coarse index added to {r.indexed} block{'s' * (r.indexed != 1)} built earlier (the search "
                    "now decodes only the blocks it needs)")
-    if r.built or not r.indexed:
+    if not r.built and not r.indexed:
+        click.echo(f"{r.path}: already complete, {r.n_blocks} block{'s' * (r.n_blocks != 1)}, "
+                   f"{r.size_bytes / 1e6:.1f} MB on disk: nothing to do")
+    elif r.built or not r.indexed:
         click.echo(f"{r.path}: {r.n_blocks} blocks ({r.built} built now, {r.resumed_from} already "
                    f"there), {r.positions} skylines in {r.seconds:.1f} s ({r.skylines_per_s:,.0f}/s), "
                    f"{r.size_bytes / 1e6:.1f} MB on disk")

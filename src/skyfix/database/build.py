@@ -219,6 +219,11 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
                           camera_height_m=camera_height_m, azimuth_bins=azimuth_bins,
                           max_distance_m=max_distance_m, planet=planet, renderer=renderer)
     action = _plan_output(out, params, grid, overwrite)  # refuses, deletes nothing
+    if action == "complete":
+        n = len(grid.blocks())
+        log.info(f"{out} is already complete, built with these parameters: nothing to do "
+                    "(--overwrite rebuilds it)")
+        return BuildResult(out, n, 0, n, 0, 0.0, float("nan"), dir_size(out))
     # The executor starts (the scheduler is reached) before anything is deleted: a bad --scheduler
     # must not cost the database that --overwrite was about to replace.
     with (nullcontext((executor, 2, False)) if executor is not None
@@ -301,8 +306,8 @@ def _plan_output(out: Path, params: dict, grid: Grid, overwrite: bool) -> str:
     """What to do with ``out``, refusing what must not happen; changes nothing on disk.
 
     Returns ``new`` (nothing there), ``rmdir`` (an empty folder), ``unlink`` (a file, with
-    --overwrite), ``replace`` (a skyfix database, with --overwrite), ``resume``, or ``index`` (a
-    complete store built without the coarse index: it is added).
+    --overwrite), ``replace`` (a skyfix database, with --overwrite), ``resume``, ``index`` (a
+    complete store built without the coarse index: it is added), or ``complete`` (nothing to do).
     """
     if not out.exists():
         return "new"
@@ -331,8 +336,9 @@ def _plan_output(out: Path, params: dict, grid: Grid, overwrite: bool) -> str:
     if len(intact_blocks(out, grid)) == len(grid.blocks()):
         if _index_missing(out, grid, params["azimuth_bins"]):
             return "index"
-        raise OutputExistsError(f"{out} is already a complete database built with these parameters: "
-                                "pass --overwrite to rebuild it")
+        # nothing to do: the same command run again (a script rerunning a build that was killed
+        # after its last block) succeeds, as a resume does
+        return "complete"
     return "resume"
 
 
