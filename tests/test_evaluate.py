@@ -35,6 +35,44 @@ def test_a_detector_the_traverse_scenario_would_ignore_is_refused(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("scenario, args, says", [
+    ("traverse", ("--map-errors", "--sets", "CLUT", "--cases", 3, "--length-m", 100),
+     "--sets: scenario traverse simulates one traverse, it draws no robustness sets; --cases: "),
+    ("traverse", ("--db", "db.zarr"), "--db: scenario traverse fixes positions on the DEM"),
+    ("traverse", ("--area", 0, 0, 1, 1), "--area: scenario traverse plans its path"),
+    ("traverse", ("--camera-height-m", 2), "--camera-height-m: scenario traverse"),
+    ("traverse", ("--tilt-deg", 5), "--tilt-deg: scenario traverse renders levelled panoramas"),
+    ("traverse", ("--skylines", "truth"), "--skylines: scenario traverse"),
+    ("traverse", ("--dem-sigma-m", 1), "--dem-sigma-m: scenario traverse"),
+    ("traverse", ("--overwrite",), "--overwrite: scenario traverse resumes its own earlier output"),
+    ("1", ("--db", "db.zarr", "--length-m", 100), "--length-m: scenario 1 simulates no traverse"),
+    ("2", ("--stop-spacing-m", 20, "--stop-conditions", "1=dust"),
+     "--stop-spacing-m, --stop-conditions: scenario 2 simulates no traverse"),
+    ("2", ("--db", "db.zarr"),
+     "--db: scenario 2 searches the DEM around a prior, it reads no database; drop --db"),
+    ("3", ("--db", "db.zarr", "--dem-sigma-m", 1), "drop --db and --dem-sigma-m"),
+])
+def test_an_option_the_scenario_does_not_read_is_refused(tmp_path, scenario, args, says):
+    """Each was ignored without a word: `--scenario traverse --map-errors --sets CLUT` exited 0
+    having simulated no set, and (then) no map error either. Refused before the DEM is read."""
+    r = run("evaluate", "--dem", tmp_path / "none.tif", "--scenario", scenario, *args,
+            "-o", tmp_path / "out")
+    assert r.exit_code == 2 and says in r.output and "Traceback" not in r.output, r.output
+    assert len(r.output.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
+
+
+def test_options_a_scenario_reads_are_not_refused(tmp_path):
+    """The same options with the scenarios that read them get past the check (to the DEM that
+    is not there)."""
+    for scenario, args in (("traverse", ("--length-m", 100, "--seed", 2, "--map-errors")),
+                           ("1", ("--db", tmp_path / "db.zarr", "--dem-sigma-m", 1)),
+                           ("2", ("--sets", "REF", "--cases", 1, "--area", 0, 0, 1, 1,
+                                  "--dem-sigma-m", 1, "--skylines", "truth"))):
+        r = run("evaluate", "--dem", tmp_path / "none.tif", "--scenario", scenario, *args,
+                "-o", tmp_path / "out")
+        assert r.exit_code == 2 and "none.tif does not exist" in r.output, r.output
+
+
 def test_scenario_1_without_a_database_is_a_one_line_error(tmp_dem_file, tmp_path):
     dem = tmp_dem_file(plane_dem(2_000, 20))
     r = run("evaluate", "--dem", dem, "--scenario", 1, "--cases", 1, "--out", tmp_path / "e")
