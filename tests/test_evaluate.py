@@ -79,6 +79,37 @@ def test_scenario_1_without_a_database_is_a_one_line_error(tmp_dem_file, tmp_pat
     assert r.exit_code == 2 and "give --db" in r.output and "Traceback" not in r.output
 
 
+def test_scenario_1_refuses_an_area_reaching_outside_the_database(tmp_dem_file, tmp_path,
+                                                                  monkeypatch):
+    """A case drawn outside the database's positions was scored as the localiser's failure (485 m
+    off a 1 x 1 km grid on south_glacier). The area the grid spans itself is still taken."""
+    import skyfix.simulate as sim
+    from skyfix.database import build_database
+
+    dem = tmp_dem_file(plane_dem(2_000, 20, slope_x=0.05))
+    db = tmp_path / "db.zarr"
+    build_database(dem, db, (800, 800, 1_200, 1_200), 50, workers=0, progress=False,
+                   azimuth_bins=90, block=8)
+
+    class Reached(Exception):
+        pass
+
+    def planned(*a, **k):
+        raise Reached(k["area"])
+
+    monkeypatch.setattr(sim, "plan_set", planned)  # past every check: where the cases are drawn
+    base = ("evaluate", "--dem", dem, "--scenario", 1, "--db", db, "--cases", 1)
+    r = run(*base, "--area", 600, 800, 1_200, 1_400, "-o", tmp_path / "out")
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert ("--area x 600.0..1200.0, y 800.0..1400.0 reaches outside the database's positions "
+            "(x 800.0..1200.0, y 800.0..1200.0)") in r.output
+    assert not (tmp_path / "out").exists()
+    r = run(*base, "--area", 800, 800, 1_200, 1_200, "-o", tmp_path / "out")
+    assert isinstance(r.exception, Reached) and r.exception.args[0] == (800, 800, 1_200, 1_200)
+    r = run(*base, "-o", tmp_path / "out")  # no --area: the grid less two spacings, as before
+    assert isinstance(r.exception, Reached) and r.exception.args[0] == (900, 900, 1_100, 1_100)
+
+
 def test_evaluate_detect_scores_a_real_labelled_mosaic(tmp_path):
     """412_1 (a clear Curiosity mosaic) through the CLI: the detector is known to be sub-pixel there."""
     import shutil

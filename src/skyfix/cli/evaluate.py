@@ -73,7 +73,8 @@ def check_scenario_options(scenario: str) -> None:
 @click.option("--db", "db_path", type=click.Path(file_okay=False), default=None,
               help="Skyline database (scenario 1); cases are drawn inside its grid.")
 @click.option("--area", type=float, nargs=4, default=None, metavar="XMIN YMIN XMAX YMAX",
-              help="Where cases are drawn [m] (default: the database grid, or the simulator's default).")
+              help="Where cases are drawn [m]; scenario 1: within the database's positions (default: "
+                   "the database grid, or the simulator's default).")
 @click.option("--camera-height-m", type=float, default=1.5, show_default=True,
               help="Camera above the ground in the simulated cases (and the database's) [m].")
 @click.option("--tilt-deg", type=float, default=15.0, show_default=True,
