@@ -539,6 +539,43 @@ def test_heading_stays_in_its_window():
     assert abs(inside.grid_heading_deg - 80.0) < 0.5 and inside.confidence > pose.PINNED_HEADING_CONFIDENCE
 
 
+def test_heading_json_carries_the_warnings_it_prints(tmp_path, dem_file, profile_json,
+                                                    monkeypatch):
+    """A warning on stderr is in the JSON's ``notes`` too, as locate's fix carries its own: they
+    were on stderr only, lost once the JSON was filed. ``notes`` is there, empty, without one."""
+    from skyfix import pose
+    from skyfix.dem import load_dem
+    from skyfix.formats import write_profile_json
+
+    path = shared_dem_path("south_glacier_20m")
+    x, y = 601_500.0, 6_744_000.0
+    write_profile_json(tmp_path / "p.json", pose.synthetic_profile(load_dem(path), x, y, 80.0,
+                                                                   noise_deg=0.05, rng=1))
+    base = ("--profile", tmp_path / "p.json", "--dem", path, "--x", x, "--y", y, "--prior-north",
+            "grid", "--heading-prior-deg")
+    for cmd in ("heading", "attitude"):
+        r = run(cmd, *base, 95)  # truth 15 deg off, window +-10: pinned to the window's edge
+        assert r.exit_code == 0, r.output
+        (said,) = json.loads(r.stdout)["notes"]
+        assert said.startswith("the heading ") and "is on the edge of the window 95 +- 10" in said
+        assert f"warning: {said}" in r.stderr
+        r = run(cmd, *base, 86)  # truth inside the window: nothing to say
+        assert r.exit_code == 0 and json.loads(r.stdout)["notes"] == [], r.output
+    # a CRS that does not say where true north is: the prior is taken from grid north, and the
+    # JSON says so. Stubbed: every DEM load_dem takes has a true north (one without a CRS is
+    # given a local transverse Mercator, an engineering grid refused), so the CLI's branch is
+    # reached through the convergence it reads
+    import skyfix.north
+
+    monkeypatch.setattr(skyfix.north, "meridian_convergence_deg", lambda crs, x, y: float("nan"))
+    r = run("heading", "--profile", profile_json(), "--dem", dem_file, "--x", 500, "--y", 500,
+            "--heading-prior-deg", 10, "-o", tmp_path / "h.json")
+    assert r.exit_code == 0, r.output
+    notes = json.loads((tmp_path / "h.json").read_text())["notes"]
+    assert any("has no CRS that says where true north is" in n for n in notes), notes
+    assert all(f"warning: {n}" in r.stderr for n in notes)
+
+
 # --- 8. plot formats --------------------------------------------------------------------------------
 
 def test_plot_is_written_in_the_format_its_suffix_names(tmp_path, dem_file):

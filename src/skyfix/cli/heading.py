@@ -51,6 +51,7 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
             window_deg, camera_height_m, position_sigma_m, dem_sigma_m, detector, out, overwrite):
     """Find the heading only, from a rough position."""
     import math
+    from dataclasses import replace
 
     import numpy as np
 
@@ -87,19 +88,27 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     frames = []  # the frames' detected rows: a narrow view is also solved in the image plane
     prof, pp, pr, cam_h = read_profile(acq, profile_path, frames, detector)
     h = camera_height_m if camera_height_m is not None else (cam_h if cam_h is not None else 1.5)
+    notes = []  # each warning printed is in the JSON too, as locate's fix carries its own
+
+    def warn(message):
+        note("warning: " + message)
+        notes.append(message)
+
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     if prior_north == "true" and not math.isfinite(conv) and window_deg < 180:
-        note(f"warning: {dem_path} has no CRS that says where true north is: the heading "
-             "prior is taken from grid north")
+        warn(f"{dem_path} has no CRS that says where true north is: the heading prior is taken "
+             "from grid north")
     grid_prior = (grid_heading_from_true(heading_prior_deg, conv) if prior_north == "true"
                   else heading_prior_deg)
     hf = estimate_heading(prof, dem, x, y, grid_prior, window_deg, camera_height_m=h,
                           prior_pitch_deg=pp, prior_roll_deg=pr, frames=frames,
-                          dem_sigma_m=dem_sigma_m, position_sigma_m=position_sigma_m)
+                          dem_sigma_m=dem_sigma_m, position_sigma_m=position_sigma_m,
+                          notes=tuple(notes))
     if window_deg < 180 and at_window_edge(hf.grid_heading_deg, grid_prior, window_deg):
-        note(f"warning: the heading {hf.heading_deg:.1f} deg is on the edge of the window "
+        warn(f"the heading {hf.heading_deg:.1f} deg is on the edge of the window "
              f"{heading_prior_deg:g} +- {window_deg:g} deg: the best match lies outside it "
              "(confidence capped); check the prior or widen --window-deg")
+        hf = replace(hf, notes=(*hf.notes, notes[-1]))
     from .provenance import provenance
 
     d = hf.to_dict()
