@@ -522,6 +522,27 @@ def test_heading_prior_must_be_finite(dem_file, profile_json, v):
                            "--y", 500, "--heading-prior-deg", v), "--heading-prior-deg must be a finite")
 
 
+@pytest.mark.parametrize("cmd", ["heading", "attitude"])
+@pytest.mark.parametrize("v", ["0", "-5", "400", "nan"])
+def test_window_must_be_within_half_a_turn_with_a_prior_or_without(dem_file, profile_json, cmd, v):
+    """Without a prior these were taken without a word (the whole circle replaced them)."""
+    base = (cmd, "--profile", profile_json(), "--dem", dem_file, "--x", 500, "--y", 500,
+            "--window-deg", v)
+    assert_clean_error(run(*base), f"--window-deg must be within (0, 180] deg, got {float(v)}")
+    assert_clean_error(run(*base, "--heading-prior-deg", 10), "--window-deg must be within (0, 180]")
+
+
+@pytest.mark.parametrize("cmd", ["heading", "attitude"])
+def test_a_window_without_a_prior_is_refused(dem_file, profile_json, cmd, tmp_path):
+    """The window is about the prior: without one the whole circle is searched and a window
+    given was dropped without a word. Refused before any output is written."""
+    r = run(cmd, "--profile", profile_json(), "--dem", dem_file, "--x", 500, "--y", 500,
+            "--window-deg", 20, "-o", tmp_path / "h.json")
+    assert_clean_error(r, "--window-deg needs --heading-prior-deg: without a prior the whole "
+                          "circle is searched")
+    assert not (tmp_path / "h.json").exists()
+
+
 def test_heading_stays_in_its_window():
     """Truth 15 deg from the prior, window +-10: the answer is the window's edge, not the truth
     outside it (it was), and its confidence says the best lies beyond."""

@@ -14,7 +14,8 @@ from ..errors import ParameterError
 from .acqinput import (check_detector, check_source, detector_used, input_files, read_acquisition,
                        read_profile)
 from .main import note
-from .options import camera_height, check_point_options, dem_sigma, detector_option, point_xy
+from .options import (camera_height, check_point_options, dem_sigma, detector_option, given,
+                      point_xy)
 
 
 @click.command("heading")
@@ -33,7 +34,8 @@ from .options import camera_height, check_point_options, dem_sigma, detector_opt
 @click.option("--prior-north", type=click.Choice(["true", "grid"]), default="true", show_default=True,
               help="Which north the heading prior is measured from.")
 @click.option("--window-deg", default=10.0, show_default=True, type=float,
-              help="Search +/- this around the prior [deg] (180 without a prior).")
+              help="Search +/- this around the prior [deg], within (0, 180] (needs "
+                   "--heading-prior-deg; without a prior the whole circle is searched).")
 @click.option("--camera-height-m", type=float, callback=camera_height,
               help="Camera height [m] (default: the acquisition's).")
 @click.option("--position-sigma-m", type=float, default=None,
@@ -62,13 +64,18 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
 
     check_source(acq_dir, profile_path)
     check_detector(profile_path, detector)
+    # checked with a prior or without: 0, -5, 400 and nan were taken without a word when there
+    # was none (the whole circle replaced them)
+    if not (math.isfinite(window_deg) and 0 < window_deg <= 180):
+        raise ParameterError(f"--window-deg must be within (0, 180] deg, got {window_deg}")
     if heading_prior_deg is None:  # no prior: the whole circle
+        if given("window_deg"):
+            raise ParameterError("--window-deg needs --heading-prior-deg: without a prior the "
+                                 "whole circle is searched (give a prior, or drop --window-deg)")
         heading_prior_deg, window_deg = 0.0, 180.0
     check_point_options(x, y, lon, lat)
     if not math.isfinite(heading_prior_deg):
         raise ParameterError(f"--heading-prior-deg must be a finite number, got {heading_prior_deg}")
-    if not (math.isfinite(window_deg) and 0 < window_deg <= 180):
-        raise ParameterError(f"--window-deg must be within (0, 180] deg, got {window_deg}")
     if position_sigma_m is None:
         from ..pose.heading import HEADING_POSITION_SIGMA_M as position_sigma_m
     if not (math.isfinite(position_sigma_m) and position_sigma_m >= 0):
