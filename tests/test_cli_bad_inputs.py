@@ -522,6 +522,27 @@ def test_heading_prior_must_be_finite(dem_file, profile_json, v):
                            "--y", 500, "--heading-prior-deg", v), "--heading-prior-deg must be a finite")
 
 
+@pytest.mark.parametrize("cmd", ["heading", "attitude"])
+@pytest.mark.parametrize("v", ["0", "-5", "400", "nan"])
+def test_window_must_be_within_half_a_turn_with_a_prior_or_without(dem_file, profile_json, cmd, v):
+    """Without a prior these were taken without a word (the whole circle replaced them)."""
+    base = (cmd, "--profile", profile_json(), "--dem", dem_file, "--x", 500, "--y", 500,
+            "--window-deg", v)
+    assert_clean_error(run(*base), f"--window-deg must be within (0, 180] deg, got {float(v)}")
+    assert_clean_error(run(*base, "--heading-prior-deg", 10), "--window-deg must be within (0, 180]")
+
+
+@pytest.mark.parametrize("cmd", ["heading", "attitude"])
+def test_a_window_without_a_prior_is_refused(dem_file, profile_json, cmd, tmp_path):
+    """The window is about the prior: without one the whole circle is searched and a window
+    given was dropped without a word. Refused before any output is written."""
+    r = run(cmd, "--profile", profile_json(), "--dem", dem_file, "--x", 500, "--y", 500,
+            "--window-deg", 20, "-o", tmp_path / "h.json")
+    assert_clean_error(r, "--window-deg needs --heading-prior-deg: without a prior the whole "
+                          "circle is searched")
+    assert not (tmp_path / "h.json").exists()
+
+
 def test_heading_stays_in_its_window():
     """Truth 15 deg from the prior, window +-10: the answer is the window's edge, not the truth
     outside it (it was), and its confidence says the best lies beyond."""
@@ -537,6 +558,43 @@ def test_heading_stays_in_its_window():
     assert h.confidence <= pose.PINNED_HEADING_CONFIDENCE
     inside = pose.estimate_heading(prof, dem, x, y, 86.0, 10.0)  # truth inside: found, not capped
     assert abs(inside.grid_heading_deg - 80.0) < 0.5 and inside.confidence > pose.PINNED_HEADING_CONFIDENCE
+
+
+def test_heading_json_carries_the_warnings_it_prints(tmp_path, dem_file, profile_json,
+                                                    monkeypatch):
+    """A warning on stderr is in the JSON's ``notes`` too, as locate's fix carries its own: they
+    were on stderr only, lost once the JSON was filed. ``notes`` is there, empty, without one."""
+    from skyfix import pose
+    from skyfix.dem import load_dem
+    from skyfix.formats import write_profile_json
+
+    path = shared_dem_path("south_glacier_20m")
+    x, y = 601_500.0, 6_744_000.0
+    write_profile_json(tmp_path / "p.json", pose.synthetic_profile(load_dem(path), x, y, 80.0,
+                                                                   noise_deg=0.05, rng=1))
+    base = ("--profile", tmp_path / "p.json", "--dem", path, "--x", x, "--y", y, "--prior-north",
+            "grid", "--heading-prior-deg")
+    for cmd in ("heading", "attitude"):
+        r = run(cmd, *base, 95)  # truth 15 deg off, window +-10: pinned to the window's edge
+        assert r.exit_code == 0, r.output
+        (said,) = json.loads(r.stdout)["notes"]
+        assert said.startswith("the heading ") and "is on the edge of the window 95 +- 10" in said
+        assert f"warning: {said}" in r.stderr
+        r = run(cmd, *base, 86)  # truth inside the window: nothing to say
+        assert r.exit_code == 0 and json.loads(r.stdout)["notes"] == [], r.output
+    # a CRS that does not say where true north is: the prior is taken from grid north, and the
+    # JSON says so. Stubbed: every DEM load_dem takes has a true north (one without a CRS is
+    # given a local transverse Mercator, an engineering grid refused), so the CLI's branch is
+    # reached through the convergence it reads
+    import skyfix.north
+
+    monkeypatch.setattr(skyfix.north, "meridian_convergence_deg", lambda crs, x, y: float("nan"))
+    r = run("heading", "--profile", profile_json(), "--dem", dem_file, "--x", 500, "--y", 500,
+            "--heading-prior-deg", 10, "-o", tmp_path / "h.json")
+    assert r.exit_code == 0, r.output
+    notes = json.loads((tmp_path / "h.json").read_text())["notes"]
+    assert any("has no CRS that says where true north is" in n for n in notes), notes
+    assert all(f"warning: {n}" in r.stderr for n in notes)
 
 
 # --- 8. plot formats --------------------------------------------------------------------------------

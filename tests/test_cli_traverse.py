@@ -99,6 +99,32 @@ def test_evaluate_traverse_reports_fused_against_odometry(tmp_path):
     assert rows[2]["update"] == "position"
 
 
+def test_evaluate_traverse_renders_its_stops_from_a_world_that_is_not_the_map(tmp_path):
+    """`evaluate --scenario traverse --map-errors` ran with the map as the world, recording
+    "map_errors": null; now the stops are rendered from the world and scored from where the
+    truth's terrain lies on the map."""
+    dem = shared_dem_path("south_glacier_20m")
+    out = tmp_path / "ev"
+    r = run("evaluate", "--dem", dem, "--scenario", "traverse", "--length-m", 50,
+            "--stop-spacing-m", 50, "--seed", 5, "--map-errors", "-o", out)
+    assert r.exit_code == 0, r.output
+    sim = json.loads((out / "traverse" / "simulation.json").read_text())["params"]
+    assert sim["map_errors"]["shift_m"] == pytest.approx(3.0)
+    acq = json.loads((out / "traverse" / "stop_000" / "acquisition.json").read_text())
+    assert acq["simulation"]["dem"]["source"].startswith("world of")
+    assert "a world that is not the map (--map-errors" in (out / "report.html").read_text()
+    # a world 2 m rms off the map in height still gives right headings wherever one is taken
+    rows = [json.loads(line) for line in (out / "result" / "stops.jsonl").read_text().splitlines()]
+    truth = [json.loads(line) for line in (out / "traverse" / "truth.jsonl").read_text().splitlines()]
+    for r_, t in zip(rows, truth):
+        if r_["update"] in ("heading", "position"):
+            assert abs((r_["heading_deg"] - t["heading_deg"] + 180) % 360 - 180) < 1.0
+    # a rerun without it is another simulation, refused by name (not resumed as the same)
+    r = run("evaluate", "--dem", dem, "--scenario", "traverse", "--length-m", 50,
+            "--stop-spacing-m", 50, "--seed", 5, "-o", out)
+    assert r.exit_code == 2 and "--map-errors" in r.output and "Traceback" not in r.output
+
+
 def test_a_traverse_rendered_from_a_world_that_is_not_the_map(tmp_path):
     """--map-errors: the stops are rendered from a world DEM (refined, height error, a 3 m
     misregistration); positions are scored from where the truth's terrain lies on the map."""

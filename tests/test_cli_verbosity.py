@@ -70,6 +70,18 @@ def test_every_subcommand_takes_v_and_q_after_its_name(name):
     assert "-v, --verbose" in r.stdout and "-q, --quiet" in r.stdout
 
 
+@pytest.mark.parametrize("args", [("-v", "-q", "info", "{dem}"), ("-q", "info", "{dem}", "-v"),
+                                  ("info", "{dem}", "-vv", "-q"), ("-v", "info", "{dem}", "-q")])
+def test_v_and_q_together_are_refused_wherever_given(scene, args):
+    """-q silenced whatever -v asked for, without a word: they do not count against each other."""
+    r = _run(*(a.format(dem=scene["dem"]) for a in args))
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert r.stderr.strip() == "Error: give -v or -q, not both (-v: more log output, -q: errors only)"
+    assert r.stdout == ""  # refused before the command ran
+    assert _run("-q", "info", scene["dem"], "-q").exit_code == 0  # each alone, twice, still runs
+    assert _run("-v", "info", scene["dem"], "-v").exit_code == 0
+
+
 def test_locate_v_after_the_subcommand_is_v_before_it(scene, tmp_path):
     args = ("--profile", scene["profile"], "--db", scene["db"], "--dem", scene["dem"])
     after = _run("locate", *args, "-o", tmp_path / "after.json", "-v")

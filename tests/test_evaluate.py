@@ -35,10 +35,79 @@ def test_a_detector_the_traverse_scenario_would_ignore_is_refused(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("scenario, args, says", [
+    ("traverse", ("--map-errors", "--sets", "CLUT", "--cases", 3, "--length-m", 100),
+     "--sets: scenario traverse simulates one traverse, it draws no robustness sets; --cases: "),
+    ("traverse", ("--db", "db.zarr"), "--db: scenario traverse fixes positions on the DEM"),
+    ("traverse", ("--area", 0, 0, 1, 1), "--area: scenario traverse plans its path"),
+    ("traverse", ("--camera-height-m", 2), "--camera-height-m: scenario traverse"),
+    ("traverse", ("--tilt-deg", 5), "--tilt-deg: scenario traverse renders levelled panoramas"),
+    ("traverse", ("--skylines", "truth"), "--skylines: scenario traverse"),
+    ("traverse", ("--dem-sigma-m", 1), "--dem-sigma-m: scenario traverse"),
+    ("traverse", ("--overwrite",), "--overwrite: scenario traverse resumes its own earlier output"),
+    ("1", ("--db", "db.zarr", "--length-m", 100), "--length-m: scenario 1 simulates no traverse"),
+    ("2", ("--stop-spacing-m", 20, "--stop-conditions", "1=dust"),
+     "--stop-spacing-m, --stop-conditions: scenario 2 simulates no traverse"),
+    ("2", ("--db", "db.zarr"),
+     "--db: scenario 2 searches the DEM around a prior, it reads no database; drop --db"),
+    ("3", ("--db", "db.zarr", "--dem-sigma-m", 1), "drop --db and --dem-sigma-m"),
+])
+def test_an_option_the_scenario_does_not_read_is_refused(tmp_path, scenario, args, says):
+    """Each was ignored without a word: `--scenario traverse --map-errors --sets CLUT` exited 0
+    having simulated no set, and (then) no map error either. Refused before the DEM is read."""
+    r = run("evaluate", "--dem", tmp_path / "none.tif", "--scenario", scenario, *args,
+            "-o", tmp_path / "out")
+    assert r.exit_code == 2 and says in r.output and "Traceback" not in r.output, r.output
+    assert len(r.output.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
+
+
+def test_options_a_scenario_reads_are_not_refused(tmp_path):
+    """The same options with the scenarios that read them get past the check (to the DEM that
+    is not there)."""
+    for scenario, args in (("traverse", ("--length-m", 100, "--seed", 2, "--map-errors")),
+                           ("1", ("--db", tmp_path / "db.zarr", "--dem-sigma-m", 1)),
+                           ("2", ("--sets", "REF", "--cases", 1, "--area", 0, 0, 1, 1,
+                                  "--dem-sigma-m", 1, "--skylines", "truth"))):
+        r = run("evaluate", "--dem", tmp_path / "none.tif", "--scenario", scenario, *args,
+                "-o", tmp_path / "out")
+        assert r.exit_code == 2 and "none.tif does not exist" in r.output, r.output
+
+
 def test_scenario_1_without_a_database_is_a_one_line_error(tmp_dem_file, tmp_path):
     dem = tmp_dem_file(plane_dem(2_000, 20))
     r = run("evaluate", "--dem", dem, "--scenario", 1, "--cases", 1, "--out", tmp_path / "e")
     assert r.exit_code == 2 and "give --db" in r.output and "Traceback" not in r.output
+
+
+def test_scenario_1_refuses_an_area_reaching_outside_the_database(tmp_dem_file, tmp_path,
+                                                                  monkeypatch):
+    """A case drawn outside the database's positions was scored as the localiser's failure (485 m
+    off a 1 x 1 km grid on south_glacier). The area the grid spans itself is still taken."""
+    import skyfix.simulate as sim
+    from skyfix.database import build_database
+
+    dem = tmp_dem_file(plane_dem(2_000, 20, slope_x=0.05))
+    db = tmp_path / "db.zarr"
+    build_database(dem, db, (800, 800, 1_200, 1_200), 50, workers=0, progress=False,
+                   azimuth_bins=90, block=8)
+
+    class Reached(Exception):
+        pass
+
+    def planned(*a, **k):
+        raise Reached(k["area"])
+
+    monkeypatch.setattr(sim, "plan_set", planned)  # past every check: where the cases are drawn
+    base = ("evaluate", "--dem", dem, "--scenario", 1, "--db", db, "--cases", 1)
+    r = run(*base, "--area", 600, 800, 1_200, 1_400, "-o", tmp_path / "out")
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert ("--area x 600.0..1200.0, y 800.0..1400.0 reaches outside the database's positions "
+            "(x 800.0..1200.0, y 800.0..1200.0)") in r.output
+    assert not (tmp_path / "out").exists()
+    r = run(*base, "--area", 800, 800, 1_200, 1_200, "-o", tmp_path / "out")
+    assert isinstance(r.exception, Reached) and r.exception.args[0] == (800, 800, 1_200, 1_200)
+    r = run(*base, "-o", tmp_path / "out")  # no --area: the grid less two spacings, as before
+    assert isinstance(r.exception, Reached) and r.exception.args[0] == (900, 900, 1_100, 1_100)
 
 
 def test_evaluate_detect_scores_a_real_labelled_mosaic(tmp_path):

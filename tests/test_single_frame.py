@@ -186,3 +186,30 @@ def test_dem_sigma_is_checked_and_widens_the_sigmas(dem_path, tmp_path):
         assert wide[k] >= exact[k]
     assert wide["pitch_sigma_deg"] > exact["pitch_sigma_deg"]
     assert wide["provenance"]["options"]["dem_sigma_m"] == 2.0
+
+
+@pytest.mark.parametrize("off_deg, capped", [(3.0, True), (0.2, False)])
+def test_a_heading_whose_two_solves_disagree_says_so_in_its_notes(dem_path, monkeypatch, off_deg,
+                                                                   capped):
+    """The image-plane solve landing more than 1 deg from the profile fit's caps the confidence,
+    as locate does; the heading result now says why in ``notes``, as locate's fix does. The
+    image-plane solve is stubbed to land ``off_deg`` away (the cap is about its answer, not how
+    it got there)."""
+    import skyfix.pose.heading as ph
+    from skyfix import pose
+    from skyfix.camera import get_camera
+    from skyfix.pose.image_plane import SOLVES_DISAGREE_CONFIDENCE, FrameRows, ImageAttitude
+
+    dem = load_dem(dem_path)
+    prof = pose.synthetic_profile(dem, X, Y, 80.0, noise_deg=0.05, rng=1)
+    monkeypatch.setattr(ph, "image_plane_attitude", lambda frames, dem, x, y, yaw, pitch, roll, **k:
+                        ImageAttitude(yaw + off_deg, pitch, roll, 0.1, 0.1, 0.1, 0.5, 500))
+    cam = get_camera("navcam")
+    h = pose.estimate_heading(prof, dem, X, Y, 82.0, 10.0,
+                              frames=[FrameRows(cam, 0.0, 10.0, np.zeros(cam.width))])
+    said = [n for n in h.notes if "image-plane heading lies more than 1 deg" in n]
+    assert bool(said) == capped and h.to_dict()["notes"] == list(h.notes)
+    if capped:
+        assert h.confidence <= SOLVES_DISAGREE_CONFIDENCE
+        assert said == [f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
+                        "heading lies more than 1 deg from the profile fit's"]

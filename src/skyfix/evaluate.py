@@ -110,6 +110,20 @@ def db_area(db, margin_m: float = 0.0):
             float(xs.max()) - margin_m, float(ys.max()) - margin_m)
 
 
+def check_area_in_database(area, db) -> None:
+    """Refuse an ``area`` [m] (xmin, ymin, xmax, ymax) that reaches outside a database's positions:
+    a case drawn there is one the search cannot find (485 m off the grid was scored as the
+    localiser's failure)."""
+    gx0, gy0, gx1, gy1 = db_area(db)
+    x0, y0, x1, y1 = (float(v) for v in area)
+    tol = 1e-6 * max(1.0, db.spacing_m)  # the grid's own float coordinates, given back as typed
+    if x0 < gx0 - tol or y0 < gy0 - tol or x1 > gx1 + tol or y1 > gy1 + tol:
+        raise ParameterError(
+            f"--area x {x0:.1f}..{x1:.1f}, y {y0:.1f}..{y1:.1f} reaches outside the database's "
+            f"positions (x {gx0:.1f}..{gx1:.1f}, y {gy0:.1f}..{gy1:.1f}): scenario 1 cannot find a "
+            "case drawn there; give an --area inside them, or none to draw within the database")
+
+
 def map_offset_of(case_dir: Path) -> tuple[float, float]:
     """(dx, dy) [m] from a simulated case's truth to where its terrain lies on the map (0, 0 when
     the world was the map): read from the simulator's record, as the truth is."""
@@ -234,6 +248,8 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
         if abs(db.camera_height_m - cfg.camera_height_m) > 1e-6:
             raise ParameterError(f"the database was built for a camera {db.camera_height_m} m high, "
                                  f"the cases use {cfg.camera_height_m} m")
+        if area is not None:
+            check_area_in_database(area, db)
         area = area or db_area(db, margin_m=2 * db.spacing_m)
     for s_i, set_name in enumerate(cfg.sets):  # an area outside the DEM, or mostly void there
         plan_set(dem, set_name, cfg.cases, cfg.seed + s_i, area=area,

@@ -14,7 +14,8 @@ from ..errors import ParameterError
 from .acqinput import (check_detector, check_source, detector_used, input_files, read_acquisition,
                        read_profile)
 from .main import note
-from .options import camera_height, check_point_options, dem_sigma, detector_option, point_xy
+from .options import (camera_height, check_point_options, dem_sigma, detector_option, given,
+                      point_xy)
 
 
 @click.command("heading")
@@ -33,7 +34,8 @@ from .options import camera_height, check_point_options, dem_sigma, detector_opt
 @click.option("--prior-north", type=click.Choice(["true", "grid"]), default="true", show_default=True,
               help="Which north the heading prior is measured from.")
 @click.option("--window-deg", default=10.0, show_default=True, type=float,
-              help="Search +/- this around the prior [deg] (180 without a prior).")
+              help="Search +/- this around the prior [deg], within (0, 180] (needs "
+                   "--heading-prior-deg; without a prior the whole circle is searched).")
 @click.option("--camera-height-m", type=float, callback=camera_height,
               help="Camera height [m] (default: the acquisition's).")
 @click.option("--position-sigma-m", type=float, default=None,
@@ -51,6 +53,7 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
             window_deg, camera_height_m, position_sigma_m, dem_sigma_m, detector, out, overwrite):
     """Find the heading only, from a rough position."""
     import math
+    from dataclasses import replace
 
     import numpy as np
 
@@ -61,13 +64,18 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
 
     check_source(acq_dir, profile_path)
     check_detector(profile_path, detector)
+    # checked with a prior or without: 0, -5, 400 and nan were taken without a word when there
+    # was none (the whole circle replaced them)
+    if not (math.isfinite(window_deg) and 0 < window_deg <= 180):
+        raise ParameterError(f"--window-deg must be within (0, 180] deg, got {window_deg}")
     if heading_prior_deg is None:  # no prior: the whole circle
+        if given("window_deg"):
+            raise ParameterError("--window-deg needs --heading-prior-deg: without a prior the "
+                                 "whole circle is searched (give a prior, or drop --window-deg)")
         heading_prior_deg, window_deg = 0.0, 180.0
     check_point_options(x, y, lon, lat)
     if not math.isfinite(heading_prior_deg):
         raise ParameterError(f"--heading-prior-deg must be a finite number, got {heading_prior_deg}")
-    if not (math.isfinite(window_deg) and 0 < window_deg <= 180):
-        raise ParameterError(f"--window-deg must be within (0, 180] deg, got {window_deg}")
     if position_sigma_m is None:
         from ..pose.heading import HEADING_POSITION_SIGMA_M as position_sigma_m
     if not (math.isfinite(position_sigma_m) and position_sigma_m >= 0):
@@ -87,19 +95,27 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     frames = []  # the frames' detected rows: a narrow view is also solved in the image plane
     prof, pp, pr, cam_h = read_profile(acq, profile_path, frames, detector)
     h = camera_height_m if camera_height_m is not None else (cam_h if cam_h is not None else 1.5)
+    notes = []  # each warning printed is in the JSON too, as locate's fix carries its own
+
+    def warn(message):
+        note("warning: " + message)
+        notes.append(message)
+
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     if prior_north == "true" and not math.isfinite(conv) and window_deg < 180:
-        note(f"warning: {dem_path} has no CRS that says where true north is: the heading "
-             "prior is taken from grid north")
+        warn(f"{dem_path} has no CRS that says where true north is: the heading prior is taken "
+             "from grid north")
     grid_prior = (grid_heading_from_true(heading_prior_deg, conv) if prior_north == "true"
                   else heading_prior_deg)
     hf = estimate_heading(prof, dem, x, y, grid_prior, window_deg, camera_height_m=h,
                           prior_pitch_deg=pp, prior_roll_deg=pr, frames=frames,
-                          dem_sigma_m=dem_sigma_m, position_sigma_m=position_sigma_m)
+                          dem_sigma_m=dem_sigma_m, position_sigma_m=position_sigma_m,
+                          notes=tuple(notes))
     if window_deg < 180 and at_window_edge(hf.grid_heading_deg, grid_prior, window_deg):
-        note(f"warning: the heading {hf.heading_deg:.1f} deg is on the edge of the window "
+        warn(f"the heading {hf.heading_deg:.1f} deg is on the edge of the window "
              f"{heading_prior_deg:g} +- {window_deg:g} deg: the best match lies outside it "
              "(confidence capped); check the prior or widen --window-deg")
+        hf = replace(hf, notes=(*hf.notes, notes[-1]))
     from .provenance import provenance
 
     d = hf.to_dict()

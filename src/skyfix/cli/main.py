@@ -15,7 +15,7 @@ import sys
 import click
 
 from .. import __version__
-from ..errors import SkyfixError
+from ..errors import ParameterError, SkyfixError
 
 #: command name -> (module under skyfix.cli, function name, one-line help)
 COMMANDS = {
@@ -116,7 +116,15 @@ def _verbosity_after(ctx, param, value):
         given["quiet"] = True
     else:
         return  # not given here: the group's configuration stands
+    check_verbosity(given["verbose"], given["quiet"])
     configure_logging(given["verbose"], given["quiet"])
+
+
+def check_verbosity(verbose: int, quiet: bool) -> None:
+    """Refuse -v with -q, wherever each was given: they do not count against each other (-q
+    silenced everything -v asked for, without a word)."""
+    if verbose and quiet:
+        raise ParameterError("give -v or -q, not both (-v: more log output, -q: errors only)")
 
 
 def with_verbosity_options(cmd):
@@ -147,6 +155,7 @@ def cli(ctx, verbose: int, quiet: bool):
     """skyfix: where a rover is and which way it faces, from the skyline."""
     # a subcommand's own -v/-q add to these (with_verbosity_options)
     ctx.meta[VERBOSITY] = {"verbose": verbose, "quiet": quiet}
+    check_verbosity(verbose, quiet)
     configure_logging(verbose, quiet)
 
 

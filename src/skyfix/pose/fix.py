@@ -55,7 +55,9 @@ class Fix:
 class HeadingFix:
     """Scenario 3's answer at a given rough position (x, y) [m] in ``crs`` (lon/lat [deg]): heading
     [deg] from true north, the grid heading and the meridian convergence as in :class:`Fix`, its
-    1-sigma [deg], pitch/roll [deg], calibrated ``confidence`` and ``score`` [deg^2]."""
+    1-sigma [deg], pitch/roll [deg], calibrated ``confidence``, ``score`` [deg^2] and ``notes``, as
+    :class:`Fix`'s: what the user must know to read it (a heading on the window's edge, a prior
+    taken from grid north, a confidence capped because two solves disagree)."""
 
     heading_deg: float
     heading_sigma_deg: float
@@ -75,9 +77,11 @@ class HeadingFix:
     #: which of heading, pitch and roll the view pins down: 1-sigma within DETERMINED_SIGMA_DEG
     determined: dict = field(default_factory=dict)
     features: dict = field(default_factory=dict, compare=False)
+    notes: tuple = ()
 
     def to_dict(self) -> dict:
         d = asdict(self)
+        d["notes"] = list(self.notes)
         d.pop("features")
         return d
 

@@ -80,7 +80,7 @@ def position_heading_sigma_deg(skyline_distance_m, weights, position_sigma_m):
 def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                      camera_height_m=1.5, planet=None, prior_pitch_deg=0.0, prior_roll_deg=0.0,
                      render_bins=1440, model=None, frames=None, dem_sigma_m=None,
-                     position_sigma_m=HEADING_POSITION_SIGMA_M) -> HeadingFix:
+                     position_sigma_m=HEADING_POSITION_SIGMA_M, notes: tuple = ()) -> HeadingFix:
     """Scenario 3: heading [deg] from a rough position (x, y) [m] and a heading prior [deg].
 
     ``heading_prior_deg`` is from grid north, as every azimuth inside skyfix (the CLI converts a
@@ -99,7 +99,8 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     each bin by :func:`position_weights` (0: every bin alike): near skylines, which a few metres
     of position error move by degrees, no longer pull the heading (scenario 3 with map errors,
     Sierra: 17 -> 20 of 20 within 1 deg), and the heading's sigma adds what that position error
-    does to it (:func:`position_heading_sigma_deg`).
+    does to it (:func:`position_heading_sigma_deg`). ``notes``: what the caller already knows the
+    result should say (as :func:`~skyfix.pose.locate.locate`'s); the search adds its own.
     """
     from ..horizon import render_horizons
 
@@ -182,6 +183,8 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         # the two solves found different basins: the confidence is the profile fit's, about
         # another answer
         conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)
+        notes = (*notes, f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
+                         "heading lies more than 1 deg from the profile fit's")
     grid = heading_360(yaw)
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     crs, lon, lat = crs_and_lonlat(dem.crs_wkt, x, y)
@@ -218,4 +221,4 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
                       conf, att.rms_deg ** 2, float(x), float(y), grid_heading_deg=grid,
                       meridian_convergence_deg=conv, crs=crs, lon=lon, lat=lat,
                       pitch_sigma_deg=psig, roll_sigma_deg=rsig, determined=determined,
-                      features=feat)
+                      features=feat, notes=tuple(notes))

@@ -55,9 +55,13 @@ def plot_errors(path, dist, pe, he, ope, ohe, fixes) -> Path:
 
 
 def evaluate_traverse(dem_path, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
-                      stop_conditions=None, mode="panorama", command="") -> Path:
+                      stop_conditions=None, mode="panorama", map_errors=None, command="") -> Path:
     """Simulate (``OUT/traverse``), fuse (``OUT/result``) and report (``OUT/report.html``); a
-    rerun resumes both. Returns the report's path."""
+    rerun resumes both. Returns the report's path.
+
+    map_errors : render the stops from a world that differs from the map
+        (:class:`skyfix.simulate.MapErrors`, as ``simulate-traverse --map-errors``); positions are
+        then scored from where the truth's terrain lies on the map (:func:`traverse_errors`)."""
     from ..dem import load_dem
     from ..report import format_table, write_report_html
     from .inputs import read_traverse
@@ -71,7 +75,8 @@ def evaluate_traverse(dem_path, out, *, length_m=3000.0, stop_spacing_m=50.0, se
     # OUT/traverse is resumed only when simulated with these same options; evaluate's own
     # --overwrite does not reach it, so a refusal offers another -o alone
     simulate_traverse(dem, out / "traverse", length_m=length_m, stop_spacing_m=stop_spacing_m,
-                      seed=seed, stop_conditions=stop_conditions, mode=mode, afresh=None)
+                      seed=seed, stop_conditions=stop_conditions, mode=mode,
+                      map_errors=map_errors, afresh=None)
     trav = read_traverse(out / "traverse")
 
     convergence = convergence_function(dem.crs_wkt)
@@ -100,9 +105,16 @@ def evaluate_traverse(dem_path, out, *, length_m=3000.0, stop_spacing_m=50.0, se
                 for r, d, p, h, o in zip(rows, dist, pe, he, ope)]
     figs = [plot_track(out / "track.png", rows, trav, dem, convergence),
             plot_errors(out / "errors.png", dist, pe, he, ope, ohe, fixes)]
+    if map_errors is None:
+        world = "images rendered from the map DEM itself (the map is the world here)"
+    else:
+        m = map_errors
+        world = (f"images rendered from a world that is not the map (--map-errors: {m.refine}x finer, "
+                 f"{m.height_rms_m:g} m rms height error, {m.shift_m:g} m misregistration), "
+                 "positions scored from where the truth's terrain lies on the map")
     intro = (f"A simulated traverse of {dist[-1]:.0f} m over {Path(dem_path).name}, a stop every "
              f"{stop_spacing_m:g} m (seed {seed}); odometry with 2 % distance and 0.5 deg / 100 m "
-             "heading drift; images rendered from the map DEM itself (the map is the world here). "
+             f"heading drift; {world}. "
              f"Scripted conditions at: {', '.join(scripted) or 'none'}.")
     return write_report_html(out, title="skyfix evaluation: traverse", intro=intro,
                              sections=[("Summary", format_table(summary, "html")),
