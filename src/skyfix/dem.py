@@ -20,8 +20,9 @@ import numpy as np
 from .errors import DemError, OutsideDemError, ParameterError
 from .planets import EARTH, planet_from_crs
 from .voids import VoidReport, collar_cells, fill_voids
-from .workcrs import (MAX_SCALE_ERROR, crop_to_footprint, direction_error_deg, earth_work_crs,
-                      geographic_bounds, local_tm_crs, scale_error, source_footprint)
+from .workcrs import (MAX_SCALE_ERROR, check_lonlat_extent, crop_to_footprint, direction_error_deg,
+                      earth_work_crs, geographic_bounds, local_tm_crs, reprojection_errors,
+                      scale_error, source_footprint)
 
 log = logging.getLogger(__name__)
 
@@ -221,7 +222,6 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
     import rasterio
     from pyproj import CRS
     from rasterio.errors import RasterioIOError
-    from rasterio.warp import Resampling, calculate_default_transform, reproject
 
     path = Path(path)
     if not path.exists():
@@ -245,6 +245,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 "so positions mean something"
             )
         src_crs = CRS.from_user_input(src.crs.to_wkt())
+        check_lonlat_extent(src_crs, src.bounds, path.name)  # before a transform trips on it
         advise = False  # a projected Earth DEM read into its UTM zone: say how to write it once
         unit = (src.units or (None,))[0]
         if unit and unit.strip().lower() not in ("m", "metre", "meter", "metres", "meters"):
@@ -312,46 +313,9 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                            "pass --crs with a metric projected CRS (e.g. a UTM zone)")
         north_up = transform.b == 0 and transform.d == 0 and transform.a > 0 and transform.e < 0
         if dst_crs != src_crs or not north_up or (resolution_m and resolution_m != abs(transform.a)):
-            dst_transform, w, h = calculate_default_transform(
-                src.crs, dst_crs.to_wkt(), src.width, src.height, *src.bounds,
-                resolution=resolution_m)
-            if resolution_m is None:  # square pixels at the finer of the two native sizes
-                res = min(abs(dst_transform.a), abs(dst_transform.e))
-                dst_transform, w, h = calculate_default_transform(
-                    src.crs, dst_crs.to_wkt(), src.width, src.height, *src.bounds, resolution=res)
-            if crs is None:
-                x0, y0 = dst_transform.c, dst_transform.f
-                x1, y1 = x0 + w * dst_transform.a, y0 + h * dst_transform.e
-                spread = scale_error(dst_crs, (min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1)))
-                if spread > MAX_WORK_SCALE_ERROR:
-                    # no one metric CRS holds a continent: every horizon would be stretched
-                    raise DemError(
-                        f"{path.name} spans too much of its body for one metric CRS: in "
-                        f"{_crs_name(dst_crs) or dst_crs.name} distances stretch "
-                        + (f"by up to {100 * spread:.0f} %" if math.isfinite(spread) else
-                           "without bound") + " over it; clip it to the area you need (e.g. "
-                        "gdalwarp -te XMIN YMIN XMAX YMAX, a few hundred km at most)")
-            out = np.full((h, w), np.nan, np.float64)
-            reproject(np.where(np.isfinite(z), z, np.nan), out, src_transform=transform,
-                      src_crs=src.crs, dst_transform=dst_transform, dst_crs=dst_crs.to_wkt(),
-                      resampling=Resampling.bilinear, src_nodata=np.nan, dst_nodata=np.nan)
-            # Crop by where the source raster lies, not by where heights are: the DEM's own voids
-            # (7 % of an SRTM tile, some along its edges) are holes to fill, not border to cut.
-            footprint = source_footprint(src.crs, transform, z.shape, dst_crs.to_wkt(),
-                                         dst_transform, (h, w))
-            collar = collar_cells(~np.isfinite(z))
-            if collar.any():  # the source's own no-data collar is no more terrain than the wedges
-                moved = np.zeros((h, w), np.uint8)
-                reproject(collar.astype(np.uint8), moved, src_transform=transform, src_crs=src.crs,
-                          dst_transform=dst_transform, dst_crs=dst_crs.to_wkt(), src_nodata=None,
-                          dst_nodata=0, resampling=Resampling.nearest)
-                footprint &= moved == 0
-            z, footprint, dst_transform = crop_to_footprint(out, footprint, dst_transform, path.name)
-            log.info("%s: reprojected into %d x %d cells, %.1f %% of them around the source's "
-                     "data (no terrain there)", path.name, z.shape[1], z.shape[0],
-                     100 * (1 - footprint.mean()))
-            outside = ~footprint
-            transform = dst_transform
+            with reprojection_errors(path.name, src_crs, dst_crs, chosen=crs is not None):
+                z, transform, outside = _reproject(z, transform, src_crs, src.bounds, dst_crs,
+                                                   resolution_m, path.name, check_spread=crs is None)
             log.info("reprojected %s from %s to %s", path.name, _crs_name(src_crs), _crs_name(dst_crs))
             if advise:
                 # the very grid read here, its wedges no-data (not 0, gdalwarp's default fill for a
@@ -378,6 +342,53 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                     "than %.1f %%): horizons are distorted by as much", path.name,
                     dem.crs_name or dst_crs.name, 100 * dem.scale_error, 100 * MAX_SCALE_ERROR)
     return dem
+
+
+def _reproject(z, transform, src_crs, bounds, dst_crs, resolution_m, name, *, check_spread):
+    """Heights ``z`` on ``transform`` in ``src_crs`` (over ``bounds``) reprojected into ``dst_crs``
+    (bilinear; square cells of ``resolution_m``, default the finer native size): (heights, their
+    transform, the mask of cells outside the source's footprint). With ``check_spread`` a grid
+    that spans too much of its body for one metric CRS is refused."""
+    from rasterio.warp import Resampling, calculate_default_transform, reproject
+
+    src_wkt, dst_wkt = src_crs.to_wkt(), dst_crs.to_wkt()
+    ny, nx = z.shape
+    dst_transform, w, h = calculate_default_transform(src_wkt, dst_wkt, nx, ny, *bounds,
+                                                      resolution=resolution_m)
+    if resolution_m is None:  # square pixels at the finer of the two native sizes
+        res = min(abs(dst_transform.a), abs(dst_transform.e))
+        dst_transform, w, h = calculate_default_transform(src_wkt, dst_wkt, nx, ny, *bounds,
+                                                          resolution=res)
+    if check_spread:
+        x0, y0 = dst_transform.c, dst_transform.f
+        x1, y1 = x0 + w * dst_transform.a, y0 + h * dst_transform.e
+        spread = scale_error(dst_crs, (min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1)))
+        if spread > MAX_WORK_SCALE_ERROR:
+            # no one metric CRS holds a continent: every horizon would be stretched
+            raise DemError(
+                f"{name} spans too much of its body for one metric CRS: in "
+                f"{_crs_name(dst_crs) or dst_crs.name} distances stretch "
+                + (f"by up to {100 * spread:.0f} %" if math.isfinite(spread) else
+                   "without bound") + " over it; clip it to the area you need (e.g. "
+                "gdalwarp -te XMIN YMIN XMAX YMAX, a few hundred km at most)")
+    out = np.full((h, w), np.nan, np.float64)
+    reproject(np.where(np.isfinite(z), z, np.nan), out, src_transform=transform,
+              src_crs=src_wkt, dst_transform=dst_transform, dst_crs=dst_wkt,
+              resampling=Resampling.bilinear, src_nodata=np.nan, dst_nodata=np.nan)
+    # Crop by where the source raster lies, not by where heights are: the DEM's own voids
+    # (7 % of an SRTM tile, some along its edges) are holes to fill, not border to cut.
+    footprint = source_footprint(src_wkt, transform, z.shape, dst_wkt, dst_transform, (h, w))
+    collar = collar_cells(~np.isfinite(z))
+    if collar.any():  # the source's own no-data collar is no more terrain than the wedges
+        moved = np.zeros((h, w), np.uint8)
+        reproject(collar.astype(np.uint8), moved, src_transform=transform, src_crs=src_wkt,
+                  dst_transform=dst_transform, dst_crs=dst_wkt, src_nodata=None,
+                  dst_nodata=0, resampling=Resampling.nearest)
+        footprint &= moved == 0
+    z, footprint, dst_transform = crop_to_footprint(out, footprint, dst_transform, name)
+    log.info("%s: reprojected into %d x %d cells, %.1f %% of them around the source's "
+             "data (no terrain there)", name, z.shape[1], z.shape[0], 100 * (1 - footprint.mean()))
+    return z, dst_transform, ~footprint
 
 
 def write_dem(path, dem: Dem) -> Path:

@@ -16,6 +16,7 @@ transverse Mercator on its body: on Earth its UTM zone where that is within 0.1 
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -125,6 +126,67 @@ def lonlat_to_xy(crs, lon: float, lat: float):
 
         raise ParameterError(f"lon {lon}, lat {lat} cannot be placed in {c.name}")
     return float(x), float(y)
+
+
+def crs_label(crs) -> str:
+    """A short name of ``crs`` for a message: its authority code (``EPSG:32607``), else its name,
+    else its PROJ string (a CRS built from one is named "unknown", which says nothing)."""
+    from pyproj import CRS
+
+    c = CRS.from_user_input(crs)
+    auth = c.to_authority(min_confidence=70)
+    if auth:
+        return f"{auth[0]}:{auth[1]}"
+    if c.name and c.name.lower() != "unknown":
+        return c.name
+    import warnings
+
+    with warnings.catch_warnings():  # "you will likely lose information": it is only a label
+        warnings.simplefilter("ignore")
+        return c.to_proj4() or c.name or "an unnamed CRS"
+
+
+def check_lonlat_extent(crs, bounds, name: str) -> None:
+    """Refuse a raster whose CRS is geographic while its coordinates (``bounds``: xmin, ymin,
+    xmax, ymax) cannot be longitudes and latitudes: beyond +-360 and +-90 deg they are metres
+    (or feet) under a wrong label, and reprojecting them fails deep inside GDAL ("Too many
+    points failed to transform") with no word on the cause. East longitudes up to 360 pass
+    (Mars's are often given so)."""
+    from pyproj import CRS
+
+    from .errors import DemError
+
+    if not CRS.from_user_input(crs).is_geographic:
+        return
+    w, s, e, n = bounds
+    if max(abs(w), abs(e)) <= 360.0 and max(abs(s), abs(n)) <= 90.0:
+        return
+    raise DemError(f"{name}: its CRS {crs_label(crs)} is geographic but its coordinates x {w:.10g}..{e:.10g}, "
+                   f"y {s:.10g}..{n:.10g} are not longitudes and latitudes: the file's CRS is wrong; set the "
+                   f"right one (gdal_edit.py -a_srs EPSG:XXXX {name}, with the code of the projection "
+                   "its coordinates are in)")
+
+
+@contextmanager
+def reprojection_errors(name: str, src_crs, dst_crs, *, chosen: bool = False):
+    """Turn GDAL's refusal to carry a raster from ``src_crs`` to ``dst_crs`` ("Too many points
+    (441 out of 441) failed to transform") into a :class:`~skyfix.errors.DemError` that names
+    the file, both CRSs and the likely cause: a ``dst_crs`` the user ``chosen`` that does not
+    cover the DEM, else coordinates that are not in the CRS the file says. Only GDAL's own
+    errors (rasterio's ``CPLE_*``, which rasterio does not export) are turned."""
+    from .errors import DemError
+
+    try:
+        yield
+    except Exception as e:  # noqa: BLE001 - narrowed below to GDAL's errors
+        if not (type(e).__name__.startswith("CPLE_") and type(e).__module__.startswith("rasterio")):
+            raise
+        why = str(e).splitlines()[0].rstrip(".") if str(e) else type(e).__name__
+        todo = ("give a --crs that covers where the DEM lies (e.g. its UTM zone)" if chosen else
+                f"its coordinates are likely not in the CRS it says: check them with gdalinfo {name} "
+                f"and set the right CRS (gdal_edit.py -a_srs EPSG:XXXX {name})")
+        raise DemError(f"{name}: cannot reproject it from {crs_label(src_crs)} to {crs_label(dst_crs)} "
+                       f"(GDAL: {why}): {todo}") from None
 
 
 def source_footprint(src_crs, src_transform, src_shape, dst_crs, dst_transform, dst_shape):
