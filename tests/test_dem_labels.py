@@ -77,3 +77,77 @@ def test_a_reprojection_gdal_refuses_is_one_line_naming_both_crss(glacier):
         load_dem(glacier, crs=far)
     r = run("horizon", glacier, "--x", 601000, "--y", 6744000, "--crs", far)
     assert_clean_error(r, "cannot reproject it from EPSG:32607")
+
+
+# --- 2. a projected CRS in feet -----------------------------------------------------------------------
+
+UTM7_FT = "+proj=utm +zone=7 +datum=WGS84 +units=ft"
+UTM7_US_FT = "+proj=utm +zone=7 +datum=WGS84 +units=us-ft"
+
+
+def in_feet(glacier, dst, crs, foot, units=None):
+    """The glacier DEM truly in feet: its coordinates and (with ``units``) heights divided by the
+    foot; without ``units`` the heights stay metres, unsaid."""
+    import rasterio
+    from rasterio.transform import Affine
+
+    with rasterio.open(glacier) as s:
+        t = s.transform
+    return relabel(glacier, dst, crs=crs, transform=Affine.scale(1 / foot) @ t,
+                   scale=1 / foot if units else 1.0, units=units)
+
+
+@pytest.mark.parametrize("crs, foot, unit", [(UTM7_FT, 0.3048, "ft"),
+                                             (UTM7_US_FT, 1200 / 3937, "us-ft")])
+def test_a_dem_in_feet_is_read_in_metres_in_the_same_projection(tmp_path, glacier, caplog, crs,
+                                                                foot, unit):
+    ref = load_dem(glacier)
+    with caplog.at_level("WARNING", logger="skyfix.dem"):
+        dem = load_dem(in_feet(glacier, tmp_path / "feet.tif", crs, foot, units=unit))
+    assert dem.crs_name == "EPSG:32607"  # the metric twin has its EPSG code
+    assert dem.shape == ref.shape and abs(dem.dx - 20.0) < 1e-6 and abs(dem.dy - 20.0) < 1e-6
+    assert abs(dem.x0 - ref.x0) < 1e-4 and abs(dem.y0 - ref.y0) < 1e-4
+    assert np.nanmax(np.abs(dem.z - ref.z)) < 1e-3  # heights back in metres, cell for cell
+    # the user's coordinates change unit: said, with the CRS they are now in
+    assert "read in EPSG:32607, the same projection in metres" in caplog.text
+    r = run("info", tmp_path / "feet.tif")
+    assert r.exit_code == 0, r.output
+    assert "work crs     EPSG:32607" in r.output and "heights      1684.6 .. 3165.2 m" in r.output
+
+
+def test_a_dem_in_feet_with_heights_of_no_unit_is_refused_saying_how_to_say_it(tmp_path, glacier):
+    """It said "target CRS unknown is not projected in metres: pass --crs", an option info,
+    build-db and locate lack: feet heights in a feet CRS are as common as metres ones, so the
+    unit is asked for, not guessed."""
+    feet = in_feet(glacier, tmp_path / "feet.tif", UTM7_FT, 0.3048)
+    for cmd in (["info", feet], ["build-db", feet, "-o", tmp_path / "db.zarr", "--bounds", 0, 0, 1, 1,
+                                 "--spacing-m", 20]):
+        r = run(*cmd)
+        assert_clean_error(r, "feet.tif: its CRS +proj=", "+units=ft", "is in foot",
+                           "does not say the unit of its heights", "gdal_edit.py -units ft",
+                           "reads it in metres, in EPSG:32607")
+        assert "--crs" not in r.output and "unknown" not in r.output
+    with pytest.raises(DemError, match="is in US survey foot"):
+        load_dem(in_feet(glacier, tmp_path / "usft.tif", UTM7_US_FT, 1200 / 3937))
+
+
+def test_a_compound_crs_says_its_heights_are_in_feet(tmp_path):
+    import rasterio
+    from rasterio.transform import from_origin
+
+    z = np.linspace(3000.0, 3300.0, 400, dtype=np.float32).reshape(20, 20)
+    path = tmp_path / "ca.tif"
+    # California zone 3 (US feet) with NAVD88 heights in US feet: San Francisco
+    with rasterio.open(path, "w", driver="GTiff", width=20, height=20, count=1, dtype="float32",
+                       crs="EPSG:2227+6360", transform=from_origin(6_000_000, 2_100_000, 60, 60)) as d:
+        d.write(z, 1)
+    dem = load_dem(path)
+    ft = 1200 / 3937
+    assert dem.crs_name == "EPSG:26943" and abs(dem.dx - 60 * ft) < 1e-6
+    assert np.allclose(dem.z, z * ft, atol=1e-3)
+
+
+def test_a_crs_asked_for_in_feet_is_refused_naming_it(glacier):
+    r = run("horizon", glacier, "--x", 601000, "--y", 6744000, "--crs", "EPSG:2227")
+    assert_clean_error(r, "the CRS asked for, EPSG:2227, is not projected in metres",
+                       "US survey foot")

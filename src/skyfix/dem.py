@@ -20,9 +20,10 @@ import numpy as np
 from .errors import DemError, OutsideDemError, ParameterError
 from .planets import EARTH, planet_from_crs
 from .voids import VoidReport, collar_cells, fill_voids
-from .workcrs import (MAX_SCALE_ERROR, check_lonlat_extent, crop_to_footprint, direction_error_deg,
-                      earth_work_crs, geographic_bounds, local_tm_crs, reprojection_errors,
-                      scale_error, source_footprint)
+from .workcrs import (MAX_SCALE_ERROR, check_lonlat_extent, crop_to_footprint, crs_label,
+                      direction_error_deg, earth_work_crs, geographic_bounds, horizontal_crs,
+                      local_tm_crs, metric_twin, reprojection_errors, scale_error,
+                      source_footprint, units_in_metres)
 
 log = logging.getLogger(__name__)
 
@@ -210,8 +211,11 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         that is within 0.1 % over it, :func:`~skyfix.workcrs.earth_work_crs`; a projected Earth
         DEM so read is said with a warning, its coordinates being the user's). A given ``crs``
         is used as is, with a warning if it stretches distances by more than 0.1 % over the DEM.
-        The body (:attr:`Dem.body`) comes from the CRS's datum. Heights are metres: a band scale
-        and offset are applied; a band whose unit says otherwise (feet, km) is refused
+        The body (:attr:`Dem.body`) comes from the CRS's datum. A CRS in feet is read in the
+        same projection in metres (said with a warning: coordinates are given in it). Heights are
+        metres: a band scale and offset are applied; heights in feet (the band's unit or a
+        compound CRS's vertical unit) are converted; any other unit is refused, and so are
+        heights of no said unit in a CRS in feet (:func:`~skyfix.workcrs.units_in_metres`)
     resolution_m : [m] pixel size when reprojecting; default about the native size. A reprojected
         grid keeps the north-up rectangle around the source raster's footprint, the cells outside
         it no-data (NaN, no terrain: :attr:`Dem.voids` counts them ``n_outside``)
@@ -222,6 +226,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
     import rasterio
     from pyproj import CRS
     from rasterio.errors import RasterioIOError
+    from rasterio.transform import Affine
 
     path = Path(path)
     if not path.exists():
@@ -247,10 +252,21 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         src_crs = CRS.from_user_input(src.crs.to_wkt())
         check_lonlat_extent(src_crs, src.bounds, path.name)  # before a transform trips on it
         advise = False  # a projected Earth DEM read into its UTM zone: say how to write it once
-        unit = (src.units or (None,))[0]
-        if unit and unit.strip().lower() not in ("m", "metre", "meter", "metres", "meters"):
-            raise DemError(f"{path}'s heights are in {unit!r}, not metres: convert them (e.g. "
-                           f"`gdal_calc.py -A {path.name} --calc 'A*0.3048'` for feet) and retry")
+        zfactor, xyfactor = units_in_metres((src.units or (None,))[0], src_crs, path.name)
+        transform, bounds = src.transform, tuple(src.bounds)
+        if xyfactor != 1.0:
+            # A CRS in feet is read in the same projection in metres: its coordinates times the
+            # foot, the very grid (no resampling). The user's coordinates change: said each time.
+            metric = metric_twin(src_crs)
+            log.warning("%s: its CRS %s is in %s: read in %s, the same projection in metres, in "
+                        "which coordinates are given (the file's x and y times %.10g)%s", path.name,
+                        crs_label(src_crs), horizontal_crs(src_crs).axis_info[0].unit_name,
+                        crs_label(metric), xyfactor,
+                        f"; heights times {zfactor:.10g}" if zfactor != 1.0 else "")
+            src_crs, transform = metric, Affine.scale(xyfactor) @ transform
+            bounds = tuple(v * xyfactor for v in bounds)
+        elif zfactor != 1.0:
+            log.info("%s: heights in %r, read in metres", path.name, src.units[0])
         if np.dtype(src.dtypes[0]).kind == "c":
             raise DemError(f"{path} holds complex numbers, not heights: give a DEM of real heights")
         if src.count > 1:
@@ -262,6 +278,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         if scale not in (None, 1.0) or offset not in (None, 0.0):
             z = z * (scale if scale is not None else 1.0) + (offset or 0.0)
             log.info("%s: band scale %s and offset %s applied to the heights", path.name, scale, offset)
+        z = z * zfactor if zfactor != 1.0 else z
         with np.errstate(invalid="ignore"):
             extreme = np.nanmax(np.abs(z)) if np.isfinite(z).any() else 0.0
         if extreme > MAX_ABS_HEIGHT_M:
@@ -271,7 +288,6 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                            f"{MAX_ABS_HEIGHT_M / 1000:g} km any terrain lies from its datum: mark its "
                            "fill value as nodata (e.g. `gdal_edit.py -a_nodata VALUE`) or convert its "
                            "units to metres")
-        transform = src.transform
         body = planet_from_crs(src_crs)
         if crs is not None:
             try:
@@ -280,16 +296,16 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 raise ParameterError(f"cannot understand CRS {crs!r}: {e}") from None
         elif src_crs.is_geographic:
             if body is EARTH:
-                dst_crs = earth_work_crs(src_crs, src.bounds)
+                dst_crs = earth_work_crs(src_crs, bounds)
             else:
-                west, south, east, north = src.bounds
+                west, south, east, north = bounds
                 dst_crs = local_tm_crs(src_crs, (west + east) / 2, (south + north) / 2)
         else:
             dst_crs = src_crs
-            err = scale_error(src_crs, src.bounds)
+            err = scale_error(src_crs, bounds)
             if err > MAX_SCALE_ERROR:
                 if body is not EARTH:
-                    w, s, e, n = geographic_bounds(src_crs, src.bounds)
+                    w, s, e, n = geographic_bounds(src_crs, bounds)
                     dst_crs = local_tm_crs(src_crs, (w + e) / 2, (s + n) / 2)
                     log.info("%s: %s stretches distances by up to %.2f %% over the DEM: "
                              "reprojected to %s", path.name, _crs_name(src_crs) or src_crs.name,
@@ -299,8 +315,8 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                     # turns directions no meridian convergence undoes (the Sierra's USA Albers put
                     # a full turn's true-north heading 0.3-0.4 deg off). Coordinates are the
                     # user's, so this is said every time.
-                    dst_crs = earth_work_crs(src_crs, src.bounds)
-                    turn = direction_error_deg(src_crs, src.bounds)
+                    dst_crs = earth_work_crs(src_crs, bounds)
+                    turn = direction_error_deg(src_crs, bounds)
                     log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
                                 "%.1f %%)%s: reprojected to %s, in which coordinates are given",
                                 path.name, _crs_name(src_crs) or src_crs.name, 100 * err,
@@ -309,12 +325,14 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                                 else "", _crs_name(dst_crs) or dst_crs.name)
                     advise = True
         if not dst_crs.is_projected or abs(dst_crs.axis_info[0].unit_conversion_factor - 1.0) > 1e-9:
-            raise DemError(f"target CRS {_crs_name(dst_crs) or dst_crs.name} is not projected in metres: "
-                           "pass --crs with a metric projected CRS (e.g. a UTM zone)")
+            # only a CRS asked for can be so: skyfix's own choices are metric
+            raise ParameterError(f"the CRS asked for, {crs_label(dst_crs)}, is not projected in metres "
+                                 f"(its unit: {dst_crs.axis_info[0].unit_name}): give a metric "
+                                 "projected CRS (e.g. the DEM's UTM zone)")
         north_up = transform.b == 0 and transform.d == 0 and transform.a > 0 and transform.e < 0
         if dst_crs != src_crs or not north_up or (resolution_m and resolution_m != abs(transform.a)):
             with reprojection_errors(path.name, src_crs, dst_crs, chosen=crs is not None):
-                z, transform, outside = _reproject(z, transform, src_crs, src.bounds, dst_crs,
+                z, transform, outside = _reproject(z, transform, src_crs, bounds, dst_crs,
                                                    resolution_m, path.name, check_spread=crs is None)
             log.info("reprojected %s from %s to %s", path.name, _crs_name(src_crs), _crs_name(dst_crs))
             if advise:

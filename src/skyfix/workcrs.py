@@ -128,6 +128,72 @@ def lonlat_to_xy(crs, lon: float, lat: float):
     return float(x), float(y)
 
 
+#: [m] the international foot and the US survey foot
+FOOT_M = 0.3048
+US_SURVEY_FOOT_M = 1200.0 / 3937.0
+#: names a band (GDAL's unit type) or a CRS axis gives its unit -> [m] per unit: heights and
+#: coordinates in feet are read in metres; any other unit is refused (a guess would be a wrong DEM)
+LENGTH_UNITS_M = {
+    **dict.fromkeys(("m", "metre", "meter", "metres", "meters"), 1.0),
+    **dict.fromkeys(("ft", "foot", "feet", "international foot", "ft_intl"), FOOT_M),
+    **dict.fromkeys(("us-ft", "us_ft", "ftus", "us survey foot", "us survey feet", "survey foot",
+                     "foot_us", "us_survey_foot"), US_SURVEY_FOOT_M),
+}
+
+
+def horizontal_crs(crs):
+    """The horizontal part of ``crs`` (a compound CRS's first member), a ``pyproj.CRS``."""
+    from pyproj import CRS
+
+    c = CRS.from_user_input(crs)
+    return c.sub_crs_list[0] if c.is_compound and c.sub_crs_list else c
+
+
+def metric_twin(crs):
+    """The projection of the projected ``crs`` on its datum with its axes in metres, named by its
+    EPSG code where PROJ finds one (UTM zone 7N in feet -> EPSG:32607). Its coordinates are the
+    feet ones times the foot: the same grid, no resampling."""
+    from pyproj import CRS
+    from pyproj.crs import ProjectedCRS
+
+    h = horizontal_crs(crs)
+    twin = ProjectedCRS(conversion=h.coordinate_operation, geodetic_crs=h.geodetic_crs,
+                        name=f"{h.name} (metres)")
+    auth = twin.to_authority(min_confidence=90)
+    return CRS.from_authority(*auth) if auth else twin
+
+
+def units_in_metres(band_unit: str | None, crs, name: str) -> tuple[float, float]:
+    """[m] per unit of a DEM's heights and of its ``crs``'s coordinates (1.0, 1.0 for a metric
+    DEM). The heights' unit is the band's (``band_unit``), else a compound CRS's vertical axis';
+    unsaid it is metres, except in a CRS whose coordinates are not: a DEM in feet holds heights
+    in feet as often as in metres, 3.3 x apart, so there it must be said, never guessed. The
+    coordinates' unit is PROJ's, exact whatever its name."""
+    from pyproj import CRS
+
+    from .errors import DemError
+
+    c = CRS.from_user_input(crs)
+    vertical = next((s for s in c.sub_crs_list if s.is_vertical), None) if c.is_compound else None
+    zunit = (band_unit or "").strip() or (vertical.axis_info[0].unit_name if vertical else None)
+    zf = LENGTH_UNITS_M.get(zunit.lower()) if zunit else 1.0
+    if zf is None:
+        raise DemError(f"{name}'s heights are in {zunit!r}, not metres or feet: convert them to metres "
+                       f"(e.g. `gdal_calc.py -A {name} --calc 'A*1000' --outfile OUT.tif` for km) "
+                       "and retry")
+    h = horizontal_crs(c)
+    hf = float(h.axis_info[0].unit_conversion_factor) if h.is_projected else 1.0
+    if abs(hf - 1.0) <= 1e-12:
+        return zf, 1.0
+    if not zunit:
+        raise DemError(f"{name}: its CRS {crs_label(c)} is in {h.axis_info[0].unit_name} and the file "
+                       f"does not say the unit of its heights: say it (gdal_edit.py -units ft {name} "
+                       f"for feet, -units us-ft for US survey feet, -units m for metres) and skyfix "
+                       f"reads it in metres, in "
+                       f"{crs_label(metric_twin(c))}")
+    return zf, hf
+
+
 def crs_label(crs) -> str:
     """A short name of ``crs`` for a message: its authority code (``EPSG:32607``), else its name,
     else its PROJ string (a CRS built from one is named "unknown", which says nothing)."""
