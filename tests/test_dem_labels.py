@@ -151,3 +151,47 @@ def test_a_crs_asked_for_in_feet_is_refused_naming_it(glacier):
     r = run("horizon", glacier, "--x", 601000, "--y", 6744000, "--crs", "EPSG:2227")
     assert_clean_error(r, "the CRS asked for, EPSG:2227, is not projected in metres",
                        "US survey foot")
+
+
+# --- 3. degrees typed where metres are expected ----------------------------------------------------
+
+LONLAT_HINT = "these look like longitude/latitude: give metres in the work CRS (`skyfix info"
+
+
+def test_degrees_for_bounds_are_printed_as_typed_with_a_hint(tmp_path, glacier):
+    """It said "corner (-139.2, 60.8) is outside the DEM": rounded to 0.1, no hint."""
+    r = run("build-db", glacier, "-o", tmp_path / "x.zarr", "--bounds", -139.15, 60.80, -139.14,
+            60.81, "--spacing-m", 20)
+    assert_clean_error(r, "corner (-139.15, 60.81) is outside the DEM", LONLAT_HINT)
+    assert "--lon" not in r.output  # build-db has no option for degrees
+    assert not (tmp_path / "x.zarr").exists()
+
+
+@pytest.mark.parametrize("cmd", ["heading", "horizon", "stack"])
+def test_degrees_for_a_point_name_the_commands_options_for_degrees(tmp_path, glacier, cmd):
+    where = ["--x", -139.13492, "--y", 60.81938]
+    if cmd == "heading":  # refused before the profile is read
+        (tmp_path / "p.json").write_text("{}")
+        r = run("heading", "--profile", tmp_path / "p.json", "--dem", glacier, *where)
+    else:
+        r = run("horizon", glacier, *where, *(["--dem", glacier] if cmd == "stack" else []))
+    assert_clean_error(r, "(-139.13492, 60.81938)", LONLAT_HINT, "or give them with --lon/--lat")
+
+
+def test_locate_names_its_prior_options_for_degrees(tmp_path, glacier):
+    (tmp_path / "p.json").write_text("{}")
+    r = run("locate", "--profile", tmp_path / "p.json", "--dem", glacier, "--prior-x", -139.13492,
+            "--prior-y", 60.81938, "--prior-radius-m", 100)
+    assert_clean_error(r, "prior position (-139.13492, 60.81938)", LONLAT_HINT,
+                       "or give them with --prior-lon/--prior-lat")
+
+
+def test_no_degree_hint_where_metres_could_be_meant():
+    from skyfix.workcrs import lonlat_hint
+
+    far = (599010.0, 6741010.0, 603950.0, 6746990.0)
+    assert lonlat_hint([-139.15], [60.81], far).startswith("; these look like longitude/latitude")
+    assert lonlat_hint([599000.5], [6744000.0], far) == ""  # metres, just off the edge
+    assert lonlat_hint([0.0], [0.0], far) == ""  # a placeholder origin, not a place
+    # a DEM in a local CRS centred near its origin: small numbers are metres there
+    assert lonlat_hint([8.5], [46.5], (-5000.0, -5000.0, 5000.0, 5000.0)) == ""

@@ -20,10 +20,10 @@ import numpy as np
 from .errors import DemError, OutsideDemError, ParameterError
 from .planets import EARTH, planet_from_crs
 from .voids import VoidReport, collar_cells, fill_voids
-from .workcrs import (MAX_SCALE_ERROR, check_lonlat_extent, crop_to_footprint, crs_label,
+from .workcrs import (MAX_SCALE_ERROR, as_typed, check_lonlat_extent, crop_to_footprint, crs_label,
                       direction_error_deg, earth_work_crs, geographic_bounds, horizontal_crs,
-                      local_tm_crs, metric_twin, reprojection_errors, scale_error,
-                      source_footprint, units_in_metres)
+                      local_tm_crs, lonlat_hint, metric_twin, reprojection_errors,
+                      scale_error, source_footprint, units_in_metres)
 
 log = logging.getLogger(__name__)
 
@@ -109,8 +109,10 @@ class Dem:
                    + z[i + 1, j] * (1 - fu) * fv + z[i + 1, j + 1] * fu * fv)
         return out if out.ndim else float(out)
 
-    def require_inside(self, x, y, what: str = "point") -> None:
-        """Raise :class:`OutsideDemError` unless every (x, y) lies inside with a known height."""
+    def require_inside(self, x, y, what: str = "point", lonlat_options: str = "") -> None:
+        """Raise :class:`OutsideDemError` unless every (x, y) lies inside with a known height; where
+        the values look like degrees, say so (``lonlat_options``: the command's own options for
+        degrees, :func:`~skyfix.workcrs.lonlat_hint`)."""
         x = np.atleast_1d(np.asarray(x, float))
         y = np.atleast_1d(np.asarray(y, float))
         inside = self.contains(x, y)
@@ -118,14 +120,14 @@ class Dem:
             k = int(np.flatnonzero(~inside)[0])
             xmin, ymin, xmax, ymax = self.bounds
             raise OutsideDemError(
-                f"{what} ({x[k]:.1f}, {y[k]:.1f}) is outside the DEM: valid x {xmin:.1f}..{xmax:.1f}, "
-                f"y {ymin:.1f}..{ymax:.1f} in {self.crs_name or 'the DEM CRS'}"
-            )
+                f"{what} ({as_typed(x[k])}, {as_typed(y[k])}) is outside the DEM: valid x "
+                f"{xmin:.1f}..{xmax:.1f}, y {ymin:.1f}..{ymax:.1f} in {self.crs_name or 'the DEM CRS'}"
+                + lonlat_hint(x, y, self.bounds, self.source or "DEM", lonlat_options))
         h = self.height_at(x, y)
         if not np.all(np.isfinite(h)):
             k = int(np.flatnonzero(~np.isfinite(h))[0])
-            raise OutsideDemError(f"{what} ({x[k]:.1f}, {y[k]:.1f}) has no height on the DEM: it "
-                                 "falls in a void or outside the DEM's data")
+            raise OutsideDemError(f"{what} ({as_typed(x[k])}, {as_typed(y[k])}) has no height on the "
+                                  "DEM: it falls in a void or outside the DEM's data")
 
     # --- far-field acceleration ------------------------------------------------------------------
     @cached_property

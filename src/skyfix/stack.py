@@ -17,6 +17,7 @@ import numpy as np
 
 from .dem import Dem, load_dem
 from .errors import DemError
+from .workcrs import as_typed, lonlat_hint
 
 
 class DemStack:
@@ -82,7 +83,8 @@ class DemStack:
             c |= np.asarray(m.contains(x, y, margin_m), bool)
         return c
 
-    def require_inside(self, x, y, what: str = "point") -> None:
+    def require_inside(self, x, y, what: str = "point", lonlat_options: str = "") -> None:
+        """:meth:`skyfix.dem.Dem.require_inside` on the stack: a height in some member."""
         h = np.atleast_1d(self.height_at(x, y))
         if not np.all(np.isfinite(h)):
             k = int(np.flatnonzero(~np.isfinite(h))[0])
@@ -91,8 +93,9 @@ class DemStack:
             from .errors import OutsideDemError
 
             raise OutsideDemError(
-                f"{what} ({xs[k]:.1f}, {ys[k]:.1f}) has no height in any DEM of the stack "
-                f"(x {b[0]:.1f}..{b[2]:.1f}, y {b[1]:.1f}..{b[3]:.1f} in {self.crs_name})")
+                f"{what} ({as_typed(xs[k])}, {as_typed(ys[k])}) has no height in any DEM of the stack "
+                f"(x {b[0]:.1f}..{b[2]:.1f}, y {b[1]:.1f}..{b[3]:.1f} in {self.crs_name})"
+                + lonlat_hint(xs, ys, b, self.members[0].source or "DEM", lonlat_options))
 
     def level_of(self, x, y):
         """Index of the finest member with a height at each (x, y) [m] (-1 where none)."""

@@ -255,6 +255,32 @@ def reprojection_errors(name: str, src_crs, dst_crs, *, chosen: bool = False):
                        f"(GDAL: {why}): {todo}") from None
 
 
+def as_typed(v) -> str:
+    """A coordinate in a message as the user would have typed it: -139.15, 601000, 60.81938 (12
+    significant digits: rounding to 0.1 hid that -139.15 was a longitude)."""
+    return f"{float(v):.12g}"
+
+
+def lonlat_hint(xs, ys, bounds, dem: str = "DEM", lonlat_options: str = "") -> str:
+    """A hint for a point refused as outside a DEM: where every (x, y) could be a longitude and a
+    latitude (|x| <= 360, |y| <= 90) while the DEM's extent ``bounds`` (xmin, ymin, xmax, ymax)
+    [m] lies wholly beyond that range, degrees were typed where metres are expected; ''
+    otherwise (a DEM in a local CRS near its origin cannot tell the two apart). ``lonlat_options``
+    names the command's own options for degrees, if it has them."""
+    xs = np.atleast_1d(np.asarray(xs, float))
+    ys = np.atleast_1d(np.asarray(ys, float))
+    if not (np.all(np.abs(xs) <= 360.0) and np.all(np.abs(ys) <= 90.0)):
+        return ""
+    if not (np.any(xs) or np.any(ys)):  # (0, 0) is a placeholder or an origin, not a place
+        return ""
+    xmin, ymin, xmax, ymax = bounds
+    if xmax >= -360.0 and xmin <= 360.0 and ymax >= -90.0 and ymin <= 90.0:
+        return ""
+    return ("; these look like longitude/latitude: give metres in the work CRS (`skyfix info "
+            f"{dem}` shows its extent)" + (f", or give them with {lonlat_options}" if lonlat_options
+                                            else ""))
+
+
 def source_footprint(src_crs, src_transform, src_shape, dst_crs, dst_transform, dst_shape):
     """Boolean (ny, nx) mask of the destination cells whose centre falls on the source raster,
     whatever the source holds there (its no-data included)."""
