@@ -195,3 +195,15 @@ def test_no_degree_hint_where_metres_could_be_meant():
     assert lonlat_hint([0.0], [0.0], far) == ""  # a placeholder origin, not a place
     # a DEM in a local CRS centred near its origin: small numbers are metres there
     assert lonlat_hint([8.5], [46.5], (-5000.0, -5000.0, 5000.0, 5000.0)) == ""
+
+
+def test_a_prior_in_degrees_off_a_database_gets_the_hint():
+    from types import SimpleNamespace
+
+    from skyfix.cli.locate import _check_prior_area
+
+    db = SimpleNamespace(x_coords=np.arange(599010.0, 603950.0, 100.0),
+                         y_coords=np.arange(6746990.0, 6741010.0, -100.0))
+    with pytest.raises(SkyfixError, match=r"prior area \(-139.13492, 60.81938\) \+- 100 m.*"
+                                          "these look like longitude/latitude.*--prior-lon"):
+        _check_prior_area(db, None, (-139.13492, 60.81938), 100.0)
