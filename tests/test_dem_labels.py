@@ -207,3 +207,19 @@ def test_a_prior_in_degrees_off_a_database_gets_the_hint():
     with pytest.raises(SkyfixError, match=r"prior area \(-139.13492, 60.81938\) \+- 100 m.*"
                                           "these look like longitude/latitude.*--prior-lon"):
         _check_prior_area(db, None, (-139.13492, 60.81938), 100.0)
+
+
+# --- 4. info on a path that is not there -----------------------------------------------------------
+
+@pytest.mark.parametrize("name, says", [
+    ("nonexistent.tif", "DEM file {p} does not exist"),
+    ("nonexistent", "no such file or folder: {p} (give a DEM or a skyline database)"),
+    ("nonexistent.zarr", "database {p} does not exist: build it with `skyfix build-db`"),
+])
+def test_info_on_a_missing_path_assumes_a_database_only_for_zarr(tmp_path, name, says):
+    """/nonexistent.tif was 'database /nonexistent.tif does not exist: build it with build-db'."""
+    p = tmp_path / name
+    r = run("info", p)
+    assert_clean_error(r, says.format(p=p))
+    if not name.endswith(".zarr"):
+        assert "database" not in r.output.replace("skyline database", "")

@@ -6,6 +6,11 @@ from __future__ import annotations
 import click
 
 
+#: suffixes of the DEM files users give (GeoTIFF, Erdas, VRT, SRTM .hgt, ASCII grid, netCDF, ...)
+RASTER_SUFFIXES = (".tif", ".tiff", ".img", ".vrt", ".hgt", ".dem", ".asc", ".nc", ".jp2", ".bil",
+                   ".flt", ".grd", ".dt0", ".dt1", ".dt2")
+
+
 @click.command("info")
 @click.argument("db", type=click.Path())
 @click.option("--json", "as_json", is_flag=True, help="Print the description as JSON.")
@@ -20,7 +25,15 @@ def info(db, as_json):
     from ..database import describe
     from ..errors import DatabaseError
 
-    if Path(db).is_file():
+    path = Path(db)
+    if not path.exists() and path.suffix.lower() != ".zarr":
+        # Only a .zarr path is taken for a database that is yet to be built; anything else that is
+        # not there may have been either, so the message assumes neither.
+        from ..errors import SkyfixError
+
+        raise SkyfixError(f"DEM file {db} does not exist" if path.suffix.lower() in RASTER_SUFFIXES
+                          else f"no such file or folder: {db} (give a DEM or a skyline database)")
+    if path.is_file():
         d = describe_dem(db)
         click.echo(to_json(d, indent=1) if as_json else "\n".join(f"{k:12s} {v}" for k, v in _dem_lines(d)))
         return
