@@ -37,9 +37,9 @@ def glacier():
     return shared_dem_path("south_glacier_20m")
 
 
-def relabel(src, dst, *, crs=None, scale=1.0, transform=None, units=None):
+def relabel(src, dst, *, crs=None, scale=1.0, offset=0.0, transform=None, units=None):
     """A copy of the raster ``src`` at ``dst`` with another CRS label (the numbers unchanged),
-    its heights times ``scale``, another ``transform`` or a band unit."""
+    its heights times ``scale`` plus ``offset``, another ``transform`` or a band unit."""
     import rasterio
 
     with rasterio.open(src) as s:
@@ -49,7 +49,7 @@ def relabel(src, dst, *, crs=None, scale=1.0, transform=None, units=None):
     if transform is not None:
         profile.update(transform=transform)
     with rasterio.open(dst, "w", **profile) as d:
-        d.write((z * scale).filled(profile["nodata"]).astype(profile["dtype"]), 1)
+        d.write((z * scale + offset).filled(profile["nodata"]).astype(profile["dtype"]), 1)
         if units:
             d.units = (units,)
     return dst
@@ -223,3 +223,59 @@ def test_info_on_a_missing_path_assumes_a_database_only_for_zarr(tmp_path, name,
     assert_clean_error(r, says.format(p=p))
     if not name.endswith(".zarr"):
         assert "database" not in r.output.replace("skyline database", "")
+
+
+# --- 5. a DEM of several bands; stacks whose members disagree or lie apart ------------------------
+
+def test_a_second_band_is_said_to_be_ignored(tmp_path, glacier):
+    import rasterio
+
+    with rasterio.open(glacier) as s:
+        profile, z = s.profile.copy(), s.read(1)
+    profile.update(count=2)
+    with rasterio.open(tmp_path / "two.tif", "w", **profile) as d:
+        d.write(np.stack([z, z * 0]))
+    r = run("info", tmp_path / "two.tif")
+    assert r.exit_code == 0 and "two.tif has 2 bands: its heights are taken from band 1" in r.output
+
+
+def test_a_stack_whose_heights_disagree_is_refused_naming_both(tmp_path, glacier):
+    """B = A / 1000 (heights in km read as metres) was stacked without a word."""
+    km = relabel(glacier, tmp_path / "km.tif", scale=1e-3)
+    r = run("horizon", glacier, "--dem", km, "--x", 601000, "--y", 6744000)
+    assert_clean_error(r, f"{km} and {glacier} disagree on heights where they overlap",
+                       "lies 2,", "m below", "another unit", "another datum")
+    from skyfix.stack import load_dems
+
+    # 80 m one way: another datum (the geoid is up to 106 m from the ellipsoid)
+    with pytest.raises(DemError, match="lies 80 m above"):
+        load_dems([glacier, relabel(glacier, tmp_path / "up80.tif", offset=80.0)])
+    # 30 m one way may be two surveys of one place: kept
+    assert len(load_dems([glacier, relabel(glacier, tmp_path / "up30.tif", offset=30.0)]).members) == 2
+
+
+def test_a_coarse_average_of_rugged_terrain_stacks(tmp_path):
+    """The median |difference| of the Alps tile against its own 1 km average is 84 m: the check
+    takes the signed median (4 m), which resolution leaves near 0."""
+    import rasterio
+    from rasterio.enums import Resampling
+
+    from skyfix.stack import load_dems
+
+    alps = shared_dem_path("alps_srtm3_n46e008")
+    with rasterio.open(alps) as s:
+        profile = s.profile.copy()
+        h, w = s.height // 12, s.width // 12
+        z = s.read(1, out_shape=(h, w), resampling=Resampling.average)
+        profile.update(height=h, width=w,
+                       transform=s.transform * s.transform.scale(s.width / w, s.height / h))
+    with rasterio.open(tmp_path / "alps_1km.tif", "w", **profile) as d:
+        d.write(z, 1)
+    assert len(load_dems([alps, tmp_path / "alps_1km.tif"]).members) == 2
+
+
+def test_unrelated_dems_are_refused_without_a_stretch_warning_first(glacier):
+    alps = shared_dem_path("alps_srtm3_n46e008")
+    r = run("horizon", glacier, "--dem", alps, "--x", 601000, "--y", 6744000)
+    assert_clean_error(r, f"{alps} does not overlap {glacier}")
+    assert "stretches distances" not in r.output and "WARNING" not in r.output
