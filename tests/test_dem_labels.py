@@ -279,3 +279,42 @@ def test_unrelated_dems_are_refused_without_a_stretch_warning_first(glacier):
     r = run("horizon", glacier, "--dem", alps, "--x", 601000, "--y", 6744000)
     assert_clean_error(r, f"{alps} does not overlap {glacier}")
     assert "stretches distances" not in r.output and "WARNING" not in r.output
+
+
+# --- 6. outputs on the kernel's file systems; counts of one -----------------------------------------
+
+def _proc_is_procfs():
+    from skyfix._io import _file_system_type
+
+    return _file_system_type("/proc") == "proc"
+
+
+@pytest.mark.skipif(not _proc_is_procfs(), reason="needs Linux's /proc")
+def test_an_output_under_proc_says_why_it_cannot_be(tmp_path, glacier):
+    """It said "folder /proc is not writable (No such file or directory)"."""
+    why = "folder /proc is on the kernel's proc file system, which holds no files of yours"
+    r = run("horizon", glacier, "--x", 601000, "--y", 6744000, "--plot", "/proc/h.png")
+    assert_clean_error(r, "cannot write /proc/h.png: " + why)
+    (tmp_path / "p.json").write_text("{}")
+    r = run("locate", "--profile", tmp_path / "p.json", "--dem", glacier, "--prior-x", 601000,
+            "--prior-y", 6744000, "--prior-radius-m", 100, "--geojson", "/proc/fix.geojson")
+    assert_clean_error(r, "cannot write /proc/fix.geojson: " + why)
+    r = run("build-db", glacier, "-o", "/proc/x.zarr", "--bounds", 600000, 6743000, 600100, 6743100,
+            "--spacing-m", 50)
+    assert_clean_error(r, "cannot write /proc/x.zarr: " + why)
+    assert "No such file" not in r.output
+
+
+def test_counts_of_one_are_singular(tmp_path, glacier):
+    from skyfix.voids import VoidReport
+
+    assert str(VoidReport(n_void=1, n_filled=1, fraction=0.001, n_outside=1)) == (
+        "1 void cell (0.1 %): 1 filled, 0 left masked; 1 cell around the data (no terrain)")
+    assert str(VoidReport(n_void=2, n_filled=2, fraction=0.002)).startswith("2 void cells")
+    db = tmp_path / "one.zarr"
+    r = run("build-db", glacier, "-o", db, "--bounds", 600000, 6743000, 600100, 6743100,
+            "--spacing-m", 50, "--workers", 0, "--azimuth-bins", 64, "--no-progress")
+    assert r.exit_code == 0 and f"{db}: 1 block (1 built now" in r.output, r.output
+    r = run("info", db)
+    assert "completeness 1 of 1 block (complete)" in r.output, r.output
+    assert "coarse index 1 of 1 block (" in r.output

@@ -51,6 +51,7 @@ def _print(d: dict) -> None:
     p = d["planet"]
     xmin, ymin, xmax, ymax = g["bounds"]
     maxd = "DEM edge" if d["max_distance_m"] is None else f"{d['max_distance_m']:g} m"
+    blocks = f"{d['n_blocks']} block{'s' * (d['n_blocks'] != 1)}"
     lines = [
         f"database     {d['path']} ({d['format']}, skyfix {d['software_version']})",
         f"crs          {d['crs']}",
@@ -61,11 +62,11 @@ def _print(d: dict) -> None:
         f"rays to {maxd}, planet {p['name']} (R {p['radius_m']:.0f} m, k {p['refraction_k']:g}), "
         f"stored in steps of {d['scale_deg']:g} deg, rendered by the {d['renderer']}",
         f"dem          {d['dem']['source']} (sha256 {d['dem']['sha256'][:16]}...)",
-        f"completeness {d['blocks_done']} of {d['n_blocks']} blocks"
+        f"completeness {d['blocks_done']} of {blocks}"
         + (f" built, DAMAGED: {len(d['blocks_data_missing'])} of them without their data files"
            if d["blocks_data_missing"] else
            " (complete)" if d["complete"] else " (INCOMPLETE: rerun the build command to finish)"),
-        f"coarse index {d['coarse_index_blocks']} of {d['n_blocks']} blocks"
+        f"coarse index {d['coarse_index_blocks']} of {blocks}"
         + (" (the search decodes only the blocks its coarse pass keeps)"
            if d["coarse_index_blocks"] == d["n_blocks"] else
            " (rerun the build command to add it: the search then decodes only the blocks it needs)"
