@@ -11,6 +11,10 @@ own CRS is geographic or projected with more than 0.1 % scale error, the DEM is 
 transverse Mercator on its body: on Earth its UTM zone where that is within 0.1 % over the DEM
 (:func:`earth_work_crs`), else one centred on the DEM (scale 1 on its central meridian: well under
 0.1 % within ~90 km of it).
+
+A DEM's labels are checked against its numbers here too: a geographic CRS on coordinates that
+cannot be degrees (:func:`check_lonlat_extent`), a CRS in feet (:func:`units_in_metres`,
+:func:`metric_twin`), and degrees typed where metres are expected (:func:`lonlat_hint`).
 """
 
 from __future__ import annotations
