@@ -268,7 +268,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
             src_crs, transform = metric, Affine.scale(xyfactor) @ transform
             bounds = tuple(v * xyfactor for v in bounds)
         elif zfactor != 1.0:
-            log.info("%s: heights in %r, read in metres", path.name, src.units[0])
+            log.info("%s: heights in feet, read in metres (times %.10g)", path.name, zfactor)
         if np.dtype(src.dtypes[0]).kind == "c":
             raise DemError(f"{path} holds complex numbers, not heights: give a DEM of real heights")
         if src.count > 1:
@@ -337,7 +337,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 z, transform, outside = _reproject(z, transform, src_crs, bounds, dst_crs,
                                                    resolution_m, path.name, check_spread=crs is None)
             log.info("reprojected %s from %s to %s", path.name, _crs_name(src_crs), _crs_name(dst_crs))
-            if advise:
+            if advise and zfactor == 1.0:  # (gdalwarp would keep heights in feet: no advice)
                 # the very grid read here, its wedges no-data (not 0, gdalwarp's default fill for a
                 # source without nodata); read back, they are no terrain again (:func:`~skyfix.voids.collar_cells`)
                 xmin, ymax = transform.c, transform.f
