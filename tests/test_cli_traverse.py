@@ -246,7 +246,7 @@ def _truncated_jpeg(t):
     (lambda t: (t / "traverse.json").write_text(json.dumps(
         {**json.loads((t / "traverse.json").read_text()),
          "start": {"x": 0, "y": 0, "heading_deg": 0, "position_sigma_m": 2, "heading_sigma_deg": 1}})),
-     "the traverse's start (0.0, 0.0) is outside the DEM"),
+     "the traverse's start (0, 0) is outside the DEM"),
 ])
 def test_a_broken_stop_or_a_start_off_the_dem_is_refused_before_the_first_stop(simulated, tmp_path,
                                                                               spoil, says):

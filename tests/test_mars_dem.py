@@ -102,7 +102,7 @@ def test_a_planet_contradicting_a_mars_crs_is_refused(tmp_path, terrain):
     assert resolve_planet("mars", EARTH) is MARS
 
 
-def test_heights_in_feet_are_refused_and_a_scale_is_applied(tmp_path, terrain):
+def test_heights_in_feet_are_read_in_metres_others_refused_and_a_scale_is_applied(tmp_path, terrain):
     import rasterio
     from rasterio.transform import from_origin
 
@@ -110,7 +110,10 @@ def test_heights_in_feet_are_refused_and_a_scale_is_applied(tmp_path, terrain):
     feet = _write(tmp_path / "feet.tif", terrain.z / 0.3048, "EPSG:32611", t)
     with rasterio.open(feet, "r+") as d:
         d.units = ("ft",)
-    with pytest.raises(DemError, match="in 'ft', not metres"):
+    assert np.nanmax(np.abs(load_dem(feet).z - terrain.z)) < 1e-2  # the unit says feet: exact
+    with rasterio.open(feet, "r+") as d:
+        d.units = ("km",)
+    with pytest.raises(DemError, match="in 'km', not metres or feet"):
         load_dem(feet)
     scaled = _write(tmp_path / "scaled.tif", (terrain.z - 100.0) / 0.5, "EPSG:32611", t)
     with rasterio.open(scaled, "r+") as d:

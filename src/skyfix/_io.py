@@ -65,6 +65,10 @@ def check_folder_output(path) -> Path:
     blocker = _file_in_the_way(path)
     if blocker is not None:
         raise cannot_write(path, f"{blocker} is a file, not a folder")
+    anc = _nearest_existing(path)
+    kind = _file_system_type(anc) if anc.is_dir() else None
+    if kind in KERNEL_FILE_SYSTEMS:  # said now: creating it fails late, naming a staging folder
+        raise cannot_write(path, _kernel_file_system(anc, kind))
     return path
 
 
@@ -86,6 +90,10 @@ def writing_to(out):
         blocker = _file_in_the_way(Path(out).parent)
         if blocker is not None:
             reason, where = f"{blocker} is a file, not a folder", ""
+        anc = _nearest_existing(Path(out).parent)
+        kind = _file_system_type(anc) if anc.is_dir() else None
+        if kind in KERNEL_FILE_SYSTEMS:  # /proc says "No such file or directory": not the reason
+            reason, where = _kernel_file_system(anc, kind), ""
         raise cannot_write(out, f"{reason}{where}; choose another --out") from None
 
 
@@ -109,13 +117,53 @@ def _missing_folder_reason(path: Path) -> str | None:
     return f"folder {parent} does not exist (create it first, or give another path)"
 
 
+#: file systems the kernel serves, which hold no files of a user's: writing into /proc says "No
+#: such file or directory", into /sys "Permission denied" (as root too), neither the real reason
+KERNEL_FILE_SYSTEMS = {"proc", "sysfs", "cgroup", "cgroup2", "debugfs", "tracefs", "securityfs",
+                       "pstore", "bpf", "configfs", "fusectl", "devpts", "mqueue", "binfmt_misc",
+                       "efivarfs", "autofs", "nsfs"}
+
+
+def _file_system_type(folder: Path) -> str | None:
+    """The type of the file system ``folder`` lies on (Linux, from /proc/self/mounts); None
+    where that cannot be read."""
+    try:
+        mounts = Path("/proc/self/mounts").read_text().splitlines()
+    except OSError:
+        return None
+    where = os.path.realpath(folder)
+    best, kind = "", None
+    for line in mounts:
+        fields = line.split()
+        if len(fields) < 3:
+            continue
+        point = fields[1].replace("\\040", " ")
+        inside = where == point or where.startswith(point.rstrip("/") + "/")
+        if inside and len(point) >= len(best):
+            best, kind = point, fields[2]
+    return kind
+
+
+def _unwritable(folder: Path, e: OSError) -> str:
+    """Why no file can be created in the existing ``folder``, ``e`` the OS's answer."""
+    kind = _file_system_type(folder)
+    if kind in KERNEL_FILE_SYSTEMS:
+        return _kernel_file_system(folder, kind)
+    return f"folder {folder} is not writable ({_reason(e)})"
+
+
+def _kernel_file_system(folder: Path, kind: str) -> str:
+    return (f"folder {folder} is on the kernel's {kind} file system, which holds no files of "
+            "yours: give a folder on a disk")
+
+
 def _probe_folder(folder: Path, path) -> None:
     """Create and delete a temporary file in ``folder``: the one reliable test that ``path`` can
     be written there (permissions, a read-only file system, root's exemptions, ACLs)."""
     try:
         fd, tmp = tempfile.mkstemp(prefix=".skyfix-write-test.", dir=folder)
     except OSError as e:
-        raise cannot_write(path, f"folder {folder} is not writable ({_reason(e)})") from None
+        raise cannot_write(path, _unwritable(folder, e)) from None
     os.close(fd)
     os.unlink(tmp)
 
@@ -140,7 +188,7 @@ def atomic_path(path, *, suffix: str | None = None):
             prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp", dir=path.parent
         )
     except OSError as e:
-        raise cannot_write(path, _missing_folder_reason(path) or _reason(e)) from None
+        raise cannot_write(path, _missing_folder_reason(path) or _unwritable(path.parent, e)) from None
     os.close(fd)
     try:
         try:

@@ -20,8 +20,10 @@ import numpy as np
 from .errors import DemError, OutsideDemError, ParameterError
 from .planets import EARTH, planet_from_crs
 from .voids import VoidReport, collar_cells, fill_voids
-from .workcrs import (MAX_SCALE_ERROR, crop_to_footprint, direction_error_deg, earth_work_crs,
-                      geographic_bounds, local_tm_crs, scale_error, source_footprint)
+from .workcrs import (MAX_SCALE_ERROR, as_typed, check_lonlat_extent, crop_to_footprint, crs_label,
+                      direction_error_deg, earth_work_crs, geographic_bounds, horizontal_crs,
+                      local_tm_crs, lonlat_hint, metric_twin, reprojection_errors,
+                      scale_error, source_footprint, units_in_metres)
 
 log = logging.getLogger(__name__)
 
@@ -107,8 +109,10 @@ class Dem:
                    + z[i + 1, j] * (1 - fu) * fv + z[i + 1, j + 1] * fu * fv)
         return out if out.ndim else float(out)
 
-    def require_inside(self, x, y, what: str = "point") -> None:
-        """Raise :class:`OutsideDemError` unless every (x, y) lies inside with a known height."""
+    def require_inside(self, x, y, what: str = "point", lonlat_options: str = "") -> None:
+        """Raise :class:`OutsideDemError` unless every (x, y) lies inside with a known height; where
+        the values look like degrees, say so (``lonlat_options``: the command's own options for
+        degrees, :func:`~skyfix.workcrs.lonlat_hint`)."""
         x = np.atleast_1d(np.asarray(x, float))
         y = np.atleast_1d(np.asarray(y, float))
         inside = self.contains(x, y)
@@ -116,14 +120,14 @@ class Dem:
             k = int(np.flatnonzero(~inside)[0])
             xmin, ymin, xmax, ymax = self.bounds
             raise OutsideDemError(
-                f"{what} ({x[k]:.1f}, {y[k]:.1f}) is outside the DEM: valid x {xmin:.1f}..{xmax:.1f}, "
-                f"y {ymin:.1f}..{ymax:.1f} in {self.crs_name or 'the DEM CRS'}"
-            )
+                f"{what} ({as_typed(x[k])}, {as_typed(y[k])}) is outside the DEM: valid x "
+                f"{xmin:.1f}..{xmax:.1f}, y {ymin:.1f}..{ymax:.1f} in {self.crs_name or 'the DEM CRS'}"
+                + lonlat_hint(x, y, self.bounds, self.source or "DEM", lonlat_options))
         h = self.height_at(x, y)
         if not np.all(np.isfinite(h)):
             k = int(np.flatnonzero(~np.isfinite(h))[0])
-            raise OutsideDemError(f"{what} ({x[k]:.1f}, {y[k]:.1f}) has no height on the DEM: it "
-                                 "falls in a void or outside the DEM's data")
+            raise OutsideDemError(f"{what} ({as_typed(x[k])}, {as_typed(y[k])}) has no height on the "
+                                  "DEM: it falls in a void or outside the DEM's data")
 
     # --- far-field acceleration ------------------------------------------------------------------
     @cached_property
@@ -209,8 +213,11 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         that is within 0.1 % over it, :func:`~skyfix.workcrs.earth_work_crs`; a projected Earth
         DEM so read is said with a warning, its coordinates being the user's). A given ``crs``
         is used as is, with a warning if it stretches distances by more than 0.1 % over the DEM.
-        The body (:attr:`Dem.body`) comes from the CRS's datum. Heights are metres: a band scale
-        and offset are applied; a band whose unit says otherwise (feet, km) is refused
+        The body (:attr:`Dem.body`) comes from the CRS's datum. A CRS in feet is read in the
+        same projection in metres (said with a warning: coordinates are given in it). Heights are
+        metres: a band scale and offset are applied; heights in feet (the band's unit or a
+        compound CRS's vertical unit) are converted; any other unit is refused, and so are
+        heights of no said unit in a CRS in feet (:func:`~skyfix.workcrs.units_in_metres`)
     resolution_m : [m] pixel size when reprojecting; default about the native size. A reprojected
         grid keeps the north-up rectangle around the source raster's footprint, the cells outside
         it no-data (NaN, no terrain: :attr:`Dem.voids` counts them ``n_outside``)
@@ -221,7 +228,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
     import rasterio
     from pyproj import CRS
     from rasterio.errors import RasterioIOError
-    from rasterio.warp import Resampling, calculate_default_transform, reproject
+    from rasterio.transform import Affine
 
     path = Path(path)
     if not path.exists():
@@ -245,11 +252,23 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 "so positions mean something"
             )
         src_crs = CRS.from_user_input(src.crs.to_wkt())
+        check_lonlat_extent(src_crs, src.bounds, path.name)  # before a transform trips on it
         advise = False  # a projected Earth DEM read into its UTM zone: say how to write it once
-        unit = (src.units or (None,))[0]
-        if unit and unit.strip().lower() not in ("m", "metre", "meter", "metres", "meters"):
-            raise DemError(f"{path}'s heights are in {unit!r}, not metres: convert them (e.g. "
-                           f"`gdal_calc.py -A {path.name} --calc 'A*0.3048'` for feet) and retry")
+        zfactor, xyfactor = units_in_metres((src.units or (None,))[0], src_crs, path.name)
+        transform, bounds = src.transform, tuple(src.bounds)
+        if xyfactor != 1.0:
+            # A CRS in feet is read in the same projection in metres: its coordinates times the
+            # foot, the very grid (no resampling). The user's coordinates change: said each time.
+            metric = metric_twin(src_crs)
+            log.warning("%s: its CRS %s is in %s: read in %s, the same projection in metres, in "
+                        "which coordinates are given (the file's x and y times %.10g)%s", path.name,
+                        crs_label(src_crs), horizontal_crs(src_crs).axis_info[0].unit_name,
+                        crs_label(metric), xyfactor,
+                        f"; heights times {zfactor:.10g}" if zfactor != 1.0 else "")
+            src_crs, transform = metric, Affine.scale(xyfactor) @ transform
+            bounds = tuple(v * xyfactor for v in bounds)
+        elif zfactor != 1.0:
+            log.info("%s: heights in feet, read in metres (times %.10g)", path.name, zfactor)
         if np.dtype(src.dtypes[0]).kind == "c":
             raise DemError(f"{path} holds complex numbers, not heights: give a DEM of real heights")
         if src.count > 1:
@@ -261,6 +280,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         if scale not in (None, 1.0) or offset not in (None, 0.0):
             z = z * (scale if scale is not None else 1.0) + (offset or 0.0)
             log.info("%s: band scale %s and offset %s applied to the heights", path.name, scale, offset)
+        z = z * zfactor if zfactor != 1.0 else z
         with np.errstate(invalid="ignore"):
             extreme = np.nanmax(np.abs(z)) if np.isfinite(z).any() else 0.0
         if extreme > MAX_ABS_HEIGHT_M:
@@ -270,7 +290,6 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                            f"{MAX_ABS_HEIGHT_M / 1000:g} km any terrain lies from its datum: mark its "
                            "fill value as nodata (e.g. `gdal_edit.py -a_nodata VALUE`) or convert its "
                            "units to metres")
-        transform = src.transform
         body = planet_from_crs(src_crs)
         if crs is not None:
             try:
@@ -279,16 +298,16 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 raise ParameterError(f"cannot understand CRS {crs!r}: {e}") from None
         elif src_crs.is_geographic:
             if body is EARTH:
-                dst_crs = earth_work_crs(src_crs, src.bounds)
+                dst_crs = earth_work_crs(src_crs, bounds)
             else:
-                west, south, east, north = src.bounds
+                west, south, east, north = bounds
                 dst_crs = local_tm_crs(src_crs, (west + east) / 2, (south + north) / 2)
         else:
             dst_crs = src_crs
-            err = scale_error(src_crs, src.bounds)
+            err = scale_error(src_crs, bounds)
             if err > MAX_SCALE_ERROR:
                 if body is not EARTH:
-                    w, s, e, n = geographic_bounds(src_crs, src.bounds)
+                    w, s, e, n = geographic_bounds(src_crs, bounds)
                     dst_crs = local_tm_crs(src_crs, (w + e) / 2, (s + n) / 2)
                     log.info("%s: %s stretches distances by up to %.2f %% over the DEM: "
                              "reprojected to %s", path.name, _crs_name(src_crs) or src_crs.name,
@@ -298,8 +317,8 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                     # turns directions no meridian convergence undoes (the Sierra's USA Albers put
                     # a full turn's true-north heading 0.3-0.4 deg off). Coordinates are the
                     # user's, so this is said every time.
-                    dst_crs = earth_work_crs(src_crs, src.bounds)
-                    turn = direction_error_deg(src_crs, src.bounds)
+                    dst_crs = earth_work_crs(src_crs, bounds)
+                    turn = direction_error_deg(src_crs, bounds)
                     log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
                                 "%.1f %%)%s: reprojected to %s, in which coordinates are given",
                                 path.name, _crs_name(src_crs) or src_crs.name, 100 * err,
@@ -308,52 +327,17 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                                 else "", _crs_name(dst_crs) or dst_crs.name)
                     advise = True
         if not dst_crs.is_projected or abs(dst_crs.axis_info[0].unit_conversion_factor - 1.0) > 1e-9:
-            raise DemError(f"target CRS {_crs_name(dst_crs) or dst_crs.name} is not projected in metres: "
-                           "pass --crs with a metric projected CRS (e.g. a UTM zone)")
+            # only a CRS asked for can be so: skyfix's own choices are metric
+            raise ParameterError(f"the CRS asked for, {crs_label(dst_crs)}, is not projected in metres "
+                                 f"(its unit: {dst_crs.axis_info[0].unit_name}): give a metric "
+                                 "projected CRS (e.g. the DEM's UTM zone)")
         north_up = transform.b == 0 and transform.d == 0 and transform.a > 0 and transform.e < 0
         if dst_crs != src_crs or not north_up or (resolution_m and resolution_m != abs(transform.a)):
-            dst_transform, w, h = calculate_default_transform(
-                src.crs, dst_crs.to_wkt(), src.width, src.height, *src.bounds,
-                resolution=resolution_m)
-            if resolution_m is None:  # square pixels at the finer of the two native sizes
-                res = min(abs(dst_transform.a), abs(dst_transform.e))
-                dst_transform, w, h = calculate_default_transform(
-                    src.crs, dst_crs.to_wkt(), src.width, src.height, *src.bounds, resolution=res)
-            if crs is None:
-                x0, y0 = dst_transform.c, dst_transform.f
-                x1, y1 = x0 + w * dst_transform.a, y0 + h * dst_transform.e
-                spread = scale_error(dst_crs, (min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1)))
-                if spread > MAX_WORK_SCALE_ERROR:
-                    # no one metric CRS holds a continent: every horizon would be stretched
-                    raise DemError(
-                        f"{path.name} spans too much of its body for one metric CRS: in "
-                        f"{_crs_name(dst_crs) or dst_crs.name} distances stretch "
-                        + (f"by up to {100 * spread:.0f} %" if math.isfinite(spread) else
-                           "without bound") + " over it; clip it to the area you need (e.g. "
-                        "gdalwarp -te XMIN YMIN XMAX YMAX, a few hundred km at most)")
-            out = np.full((h, w), np.nan, np.float64)
-            reproject(np.where(np.isfinite(z), z, np.nan), out, src_transform=transform,
-                      src_crs=src.crs, dst_transform=dst_transform, dst_crs=dst_crs.to_wkt(),
-                      resampling=Resampling.bilinear, src_nodata=np.nan, dst_nodata=np.nan)
-            # Crop by where the source raster lies, not by where heights are: the DEM's own voids
-            # (7 % of an SRTM tile, some along its edges) are holes to fill, not border to cut.
-            footprint = source_footprint(src.crs, transform, z.shape, dst_crs.to_wkt(),
-                                         dst_transform, (h, w))
-            collar = collar_cells(~np.isfinite(z))
-            if collar.any():  # the source's own no-data collar is no more terrain than the wedges
-                moved = np.zeros((h, w), np.uint8)
-                reproject(collar.astype(np.uint8), moved, src_transform=transform, src_crs=src.crs,
-                          dst_transform=dst_transform, dst_crs=dst_crs.to_wkt(), src_nodata=None,
-                          dst_nodata=0, resampling=Resampling.nearest)
-                footprint &= moved == 0
-            z, footprint, dst_transform = crop_to_footprint(out, footprint, dst_transform, path.name)
-            log.info("%s: reprojected into %d x %d cells, %.1f %% of them around the source's "
-                     "data (no terrain there)", path.name, z.shape[1], z.shape[0],
-                     100 * (1 - footprint.mean()))
-            outside = ~footprint
-            transform = dst_transform
+            with reprojection_errors(path.name, src_crs, dst_crs, chosen=crs is not None):
+                z, transform, outside = _reproject(z, transform, src_crs, bounds, dst_crs,
+                                                   resolution_m, path.name, check_spread=crs is None)
             log.info("reprojected %s from %s to %s", path.name, _crs_name(src_crs), _crs_name(dst_crs))
-            if advise:
+            if advise and zfactor == 1.0:  # (gdalwarp would keep heights in feet: no advice)
                 # the very grid read here, its wedges no-data (not 0, gdalwarp's default fill for a
                 # source without nodata); read back, they are no terrain again (:func:`~skyfix.voids.collar_cells`)
                 xmin, ymax = transform.c, transform.f
@@ -378,6 +362,53 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                     "than %.1f %%): horizons are distorted by as much", path.name,
                     dem.crs_name or dst_crs.name, 100 * dem.scale_error, 100 * MAX_SCALE_ERROR)
     return dem
+
+
+def _reproject(z, transform, src_crs, bounds, dst_crs, resolution_m, name, *, check_spread):
+    """Heights ``z`` on ``transform`` in ``src_crs`` (over ``bounds``) reprojected into ``dst_crs``
+    (bilinear; square cells of ``resolution_m``, default the finer native size): (heights, their
+    transform, the mask of cells outside the source's footprint). With ``check_spread`` a grid
+    that spans too much of its body for one metric CRS is refused."""
+    from rasterio.warp import Resampling, calculate_default_transform, reproject
+
+    src_wkt, dst_wkt = src_crs.to_wkt(), dst_crs.to_wkt()
+    ny, nx = z.shape
+    dst_transform, w, h = calculate_default_transform(src_wkt, dst_wkt, nx, ny, *bounds,
+                                                      resolution=resolution_m)
+    if resolution_m is None:  # square pixels at the finer of the two native sizes
+        res = min(abs(dst_transform.a), abs(dst_transform.e))
+        dst_transform, w, h = calculate_default_transform(src_wkt, dst_wkt, nx, ny, *bounds,
+                                                          resolution=res)
+    if check_spread:
+        x0, y0 = dst_transform.c, dst_transform.f
+        x1, y1 = x0 + w * dst_transform.a, y0 + h * dst_transform.e
+        spread = scale_error(dst_crs, (min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1)))
+        if spread > MAX_WORK_SCALE_ERROR:
+            # no one metric CRS holds a continent: every horizon would be stretched
+            raise DemError(
+                f"{name} spans too much of its body for one metric CRS: in "
+                f"{_crs_name(dst_crs) or dst_crs.name} distances stretch "
+                + (f"by up to {100 * spread:.0f} %" if math.isfinite(spread) else
+                   "without bound") + " over it; clip it to the area you need (e.g. "
+                "gdalwarp -te XMIN YMIN XMAX YMAX, a few hundred km at most)")
+    out = np.full((h, w), np.nan, np.float64)
+    reproject(np.where(np.isfinite(z), z, np.nan), out, src_transform=transform,
+              src_crs=src_wkt, dst_transform=dst_transform, dst_crs=dst_wkt,
+              resampling=Resampling.bilinear, src_nodata=np.nan, dst_nodata=np.nan)
+    # Crop by where the source raster lies, not by where heights are: the DEM's own voids
+    # (7 % of an SRTM tile, some along its edges) are holes to fill, not border to cut.
+    footprint = source_footprint(src_wkt, transform, z.shape, dst_wkt, dst_transform, (h, w))
+    collar = collar_cells(~np.isfinite(z))
+    if collar.any():  # the source's own no-data collar is no more terrain than the wedges
+        moved = np.zeros((h, w), np.uint8)
+        reproject(collar.astype(np.uint8), moved, src_transform=transform, src_crs=src_wkt,
+                  dst_transform=dst_transform, dst_crs=dst_wkt, src_nodata=None,
+                  dst_nodata=0, resampling=Resampling.nearest)
+        footprint &= moved == 0
+    z, footprint, dst_transform = crop_to_footprint(out, footprint, dst_transform, name)
+    log.info("%s: reprojected into %d x %d cells, %.1f %% of them around the source's "
+             "data (no terrain there)", name, z.shape[1], z.shape[0], 100 * (1 - footprint.mean()))
+    return z, dst_transform, ~footprint
 
 
 def write_dem(path, dem: Dem) -> Path:

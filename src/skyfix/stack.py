@@ -17,6 +17,7 @@ import numpy as np
 
 from .dem import Dem, load_dem
 from .errors import DemError
+from .workcrs import as_typed, lonlat_hint
 
 
 class DemStack:
@@ -82,7 +83,8 @@ class DemStack:
             c |= np.asarray(m.contains(x, y, margin_m), bool)
         return c
 
-    def require_inside(self, x, y, what: str = "point") -> None:
+    def require_inside(self, x, y, what: str = "point", lonlat_options: str = "") -> None:
+        """:meth:`skyfix.dem.Dem.require_inside` on the stack: a height in some member."""
         h = np.atleast_1d(self.height_at(x, y))
         if not np.all(np.isfinite(h)):
             k = int(np.flatnonzero(~np.isfinite(h))[0])
@@ -91,8 +93,9 @@ class DemStack:
             from .errors import OutsideDemError
 
             raise OutsideDemError(
-                f"{what} ({xs[k]:.1f}, {ys[k]:.1f}) has no height in any DEM of the stack "
-                f"(x {b[0]:.1f}..{b[2]:.1f}, y {b[1]:.1f}..{b[3]:.1f} in {self.crs_name})")
+                f"{what} ({as_typed(xs[k])}, {as_typed(ys[k])}) has no height in any DEM of the stack "
+                f"(x {b[0]:.1f}..{b[2]:.1f}, y {b[1]:.1f}..{b[3]:.1f} in {self.crs_name})"
+                + lonlat_hint(xs, ys, b, self.members[0].source or "DEM", lonlat_options))
 
     def level_of(self, x, y):
         """Index of the finest member with a height at each (x, y) [m] (-1 where none)."""
@@ -184,8 +187,9 @@ def _mask_covered(coarse: Dem, finer: list[Dem]) -> Dem:
 
 def load_dems(paths, *, crs: str | None = None):
     """One DEM (a :class:`Dem`) or several (a :class:`DemStack`, finest first, in the finest's
-    work CRS; each coarser one reprojected there at its own cell size). DEMs of two bodies, or
-    that do not overlap, are refused."""
+    work CRS; each coarser one reprojected there at its own cell size). DEMs of two bodies, that
+    do not overlap, or whose heights differ by more than :data:`MAX_MEDIAN_HEIGHT_GAP_M` in the
+    median where they overlap (another unit or datum) are refused."""
     paths = [paths] if isinstance(paths, (str, bytes)) or not hasattr(paths, "__iter__") else list(paths)
     if not paths:
         raise DemError("no DEM given")
@@ -201,11 +205,66 @@ def load_dems(paths, *, crs: str | None = None):
     members = [finest]
     for i in order[1:]:
         d = first[i]
+        apart = DemError(f"{paths[i]} does not overlap {paths[order[0]]}: a stack describes one "
+                         "place (check their CRSs and extents with skyfix info)")
         if d.crs_wkt != finest.crs_wkt:  # into the finest's work CRS, at its own resolution
+            # first where each lies on the body: reading a DEM from the far side of the world
+            # into the finest's CRS only to refuse it warned of its stretch before the refusal
+            if not _lonlat_overlap(d, finest):
+                raise apart
             d = load_dem(paths[i], crs=finest.crs_wkt, resolution_m=d.cell_m)
         b, f = d.bounds, finest.bounds
         if b[0] > f[2] or b[2] < f[0] or b[1] > f[3] or b[3] < f[1]:
-            raise DemError(f"{paths[i]} does not overlap {paths[order[0]]}: a stack describes one "
-                           "place (check their CRSs and extents with skyfix info)")
+            raise apart
+        _check_heights_agree(finest, d, paths[order[0]], paths[i])
         members.append(d)
     return DemStack(members)
+
+
+def _lonlat_overlap(a: Dem, b: Dem) -> bool:
+    """Whether the longitude/latitude boxes of two DEMs on one body meet (True where either box
+    cannot be had, or crosses the antimeridian: the check in the work CRS then decides)."""
+    from .workcrs import geographic_bounds
+
+    try:
+        (aw, as_, ae, an), (bw, bs, be, bn) = (geographic_bounds(d.crs_wkt, d.bounds) for d in (a, b))
+    except Exception:  # noqa: BLE001 - pyproj raises several types for bounds it cannot carry
+        return True
+    if not np.all(np.isfinite([aw, as_, ae, an, bw, bs, be, bn])) or aw > ae or bw > be:
+        return True
+    return not (aw > be or ae < bw or as_ > bn or an < bs)
+
+
+#: [m] the largest median height difference two members of a stack may have where they overlap.
+#: A median, signed: a coarse DEM smooths ridges down and valleys up, by as much each way, so
+#: the median stays near 0 however the two resolutions differ (the Alps tile against its own
+#: 1 km average: 4 m, where the median |difference| is 84 m and would refuse a sound stack);
+#: heights in another unit (feet: 3.3 x the metres; km) or above another datum (the geoid lies up
+#: to 106 m from the ellipsoid) move it all one way. Past 50 m the step where the fine DEM ends
+#: lifts or drops the coarse skyline by 0.3 deg at 10 km, hundreds of times what skyfix resolves.
+MAX_MEDIAN_HEIGHT_GAP_M = 50.0
+
+
+def _check_heights_agree(fine: Dem, coarse: Dem, fine_path, coarse_path) -> None:
+    """Refuse two members whose heights disagree grossly where they overlap (on the fine
+    member's nodes, at most ~200 x 200 of them, against the coarse member's bilinear heights)."""
+    ny, nx = fine.z.shape
+    step = max(1, int(np.ceil(max(ny, nx) / 200)))
+    rows, cols = np.arange(0, ny, step), np.arange(0, nx, step)
+    gx, gy = np.meshgrid(fine.x0 + cols * fine.dx, fine.y0 - rows * fine.dy)
+    zf = fine.z[np.ix_(rows, cols)].astype(np.float64)
+    inside = np.asarray(coarse.contains(gx, gy), bool) & np.isfinite(zf)
+    if inside.sum() < 4:  # too little overlap to say anything
+        return
+    zc = np.asarray(coarse.height_at(gx[inside], gy[inside]), np.float64)
+    diff = zc - zf[inside]
+    diff = diff[np.isfinite(diff)]
+    if diff.size < 4:
+        return
+    gap = float(np.median(diff))
+    if abs(gap) > MAX_MEDIAN_HEIGHT_GAP_M:
+        raise DemError(
+            f"{coarse_path} and {fine_path} disagree on heights where they overlap: {coarse_path} "
+            f"lies {abs(gap):,.0f} m {'above' if gap > 0 else 'below'} {fine_path} in the median of "
+            f"{diff.size} points (more than {MAX_MEDIAN_HEIGHT_GAP_M:g} m: heights in another unit, "
+            "feet or km, or above another datum?): convert one so both hold metres above one datum")

@@ -33,10 +33,11 @@ class VoidReport:
     def __str__(self) -> str:
         parts = []
         if self.n_void:
-            parts.append(f"{self.n_void} void cells ({100 * self.fraction:.1f} %): {self.n_filled} "
-                         f"filled, {self.n_remaining} left masked")
+            parts.append(f"{self.n_void} void cell{'s' * (self.n_void != 1)} "
+                         f"({100 * self.fraction:.1f} %): {self.n_filled} filled, {self.n_remaining} "
+                         "left masked")
         if self.n_outside:
-            parts.append(f"{self.n_outside} cells around the data (no terrain)")
+            parts.append(f"{self.n_outside} cell{'s' * (self.n_outside != 1)} around the data (no terrain)")
         return "; ".join(parts) or "no voids"
 
 

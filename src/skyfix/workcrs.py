@@ -11,11 +11,16 @@ own CRS is geographic or projected with more than 0.1 % scale error, the DEM is 
 transverse Mercator on its body: on Earth its UTM zone where that is within 0.1 % over the DEM
 (:func:`earth_work_crs`), else one centred on the DEM (scale 1 on its central meridian: well under
 0.1 % within ~90 km of it).
+
+A DEM's labels are checked against its numbers here too: a geographic CRS on coordinates that
+cannot be degrees (:func:`check_lonlat_extent`), a CRS in feet (:func:`units_in_metres`,
+:func:`metric_twin`), and degrees typed where metres are expected (:func:`lonlat_hint`).
 """
 
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -125,6 +130,159 @@ def lonlat_to_xy(crs, lon: float, lat: float):
 
         raise ParameterError(f"lon {lon}, lat {lat} cannot be placed in {c.name}")
     return float(x), float(y)
+
+
+#: [m] the international foot and the US survey foot
+FOOT_M = 0.3048
+US_SURVEY_FOOT_M = 1200.0 / 3937.0
+#: names a band (GDAL's unit type) or a CRS axis gives its unit -> [m] per unit: heights and
+#: coordinates in feet are read in metres; any other unit is refused (a guess would be a wrong DEM)
+LENGTH_UNITS_M = {
+    **dict.fromkeys(("m", "metre", "meter", "metres", "meters"), 1.0),
+    **dict.fromkeys(("ft", "foot", "feet", "international foot", "ft_intl"), FOOT_M),
+    **dict.fromkeys(("us-ft", "us_ft", "ftus", "us survey foot", "us survey feet", "survey foot",
+                     "foot_us", "us_survey_foot"), US_SURVEY_FOOT_M),
+}
+
+
+def horizontal_crs(crs):
+    """The horizontal part of ``crs`` (a compound CRS's first member), a ``pyproj.CRS``."""
+    from pyproj import CRS
+
+    c = CRS.from_user_input(crs)
+    return c.sub_crs_list[0] if c.is_compound and c.sub_crs_list else c
+
+
+def metric_twin(crs):
+    """The projection of the projected ``crs`` on its datum with its axes in metres, named by its
+    EPSG code where PROJ finds one (UTM zone 7N in feet -> EPSG:32607). Its coordinates are the
+    feet ones times the foot: the same grid, no resampling."""
+    from pyproj import CRS
+    from pyproj.crs import ProjectedCRS
+
+    h = horizontal_crs(crs)
+    twin = ProjectedCRS(conversion=h.coordinate_operation, geodetic_crs=h.geodetic_crs,
+                        name=f"{h.name} (metres)")
+    auth = twin.to_authority(min_confidence=90)
+    return CRS.from_authority(*auth) if auth else twin
+
+
+def units_in_metres(band_unit: str | None, crs, name: str) -> tuple[float, float]:
+    """[m] per unit of a DEM's heights and of its ``crs``'s coordinates (1.0, 1.0 for a metric
+    DEM). The heights' unit is the band's (``band_unit``), else a compound CRS's vertical axis';
+    unsaid it is metres, except in a CRS whose coordinates are not: a DEM in feet holds heights
+    in feet as often as in metres, 3.3 x apart, so there it must be said, never guessed. The
+    coordinates' unit is PROJ's, exact whatever its name."""
+    from pyproj import CRS
+
+    from .errors import DemError
+
+    c = CRS.from_user_input(crs)
+    vertical = next((s for s in c.sub_crs_list if s.is_vertical), None) if c.is_compound else None
+    zunit = (band_unit or "").strip() or (vertical.axis_info[0].unit_name if vertical else None)
+    zf = LENGTH_UNITS_M.get(zunit.lower()) if zunit else 1.0
+    if zf is None:
+        raise DemError(f"{name}'s heights are in {zunit!r}, not metres or feet: convert them to metres "
+                       f"(e.g. `gdal_calc.py -A {name} --calc 'A*1000' --outfile OUT.tif` for km) "
+                       "and retry")
+    h = horizontal_crs(c)
+    hf = float(h.axis_info[0].unit_conversion_factor) if h.is_projected else 1.0
+    if abs(hf - 1.0) <= 1e-12:
+        return zf, 1.0
+    if not zunit:
+        raise DemError(f"{name}: its CRS {crs_label(c)} is in {h.axis_info[0].unit_name} and the file "
+                       f"does not say the unit of its heights: say it (gdal_edit.py -units ft {name} "
+                       f"for feet, -units us-ft for US survey feet, -units m for metres) and skyfix "
+                       f"reads it in metres, in "
+                       f"{crs_label(metric_twin(c))}")
+    return zf, hf
+
+
+def crs_label(crs) -> str:
+    """A short name of ``crs`` for a message: its authority code (``EPSG:32607``), else its name,
+    else its PROJ string (a CRS built from one is named "unknown", which says nothing)."""
+    from pyproj import CRS
+
+    c = CRS.from_user_input(crs)
+    auth = c.to_authority(min_confidence=70)
+    if auth:
+        return f"{auth[0]}:{auth[1]}"
+    if c.name and c.name.lower() != "unknown":
+        return c.name
+    import warnings
+
+    with warnings.catch_warnings():  # "you will likely lose information": it is only a label
+        warnings.simplefilter("ignore")
+        return c.to_proj4() or c.name or "an unnamed CRS"
+
+
+def check_lonlat_extent(crs, bounds, name: str) -> None:
+    """Refuse a raster whose CRS is geographic while its coordinates (``bounds``: xmin, ymin,
+    xmax, ymax) cannot be longitudes and latitudes: beyond +-360 and +-90 deg they are metres
+    (or feet) under a wrong label, and reprojecting them fails deep inside GDAL ("Too many
+    points failed to transform") with no word on the cause. East longitudes up to 360 pass
+    (Mars's are often given so)."""
+    from pyproj import CRS
+
+    from .errors import DemError
+
+    if not CRS.from_user_input(crs).is_geographic:
+        return
+    w, s, e, n = bounds
+    if max(abs(w), abs(e)) <= 360.0 and max(abs(s), abs(n)) <= 90.0:
+        return
+    raise DemError(f"{name}: its CRS {crs_label(crs)} is geographic but its coordinates x {w:.10g}..{e:.10g}, "
+                   f"y {s:.10g}..{n:.10g} are not longitudes and latitudes: the file's CRS is wrong; set the "
+                   f"right one (gdal_edit.py -a_srs EPSG:XXXX {name}, with the code of the projection "
+                   "its coordinates are in)")
+
+
+@contextmanager
+def reprojection_errors(name: str, src_crs, dst_crs, *, chosen: bool = False):
+    """Turn GDAL's refusal to carry a raster from ``src_crs`` to ``dst_crs`` ("Too many points
+    (441 out of 441) failed to transform") into a :class:`~skyfix.errors.DemError` that names
+    the file, both CRSs and the likely cause: a ``dst_crs`` the user ``chosen`` that does not
+    cover the DEM, else coordinates that are not in the CRS the file says. Only GDAL's own
+    errors (rasterio's ``CPLE_*``, which rasterio does not export) are turned."""
+    from .errors import DemError
+
+    try:
+        yield
+    except Exception as e:  # noqa: BLE001 - narrowed below to GDAL's errors
+        if not (type(e).__name__.startswith("CPLE_") and type(e).__module__.startswith("rasterio")):
+            raise
+        why = str(e).splitlines()[0].rstrip(".") if str(e) else type(e).__name__
+        todo = ("give a --crs that covers where the DEM lies (e.g. its UTM zone)" if chosen else
+                f"its coordinates are likely not in the CRS it says: check them with gdalinfo {name} "
+                f"and set the right CRS (gdal_edit.py -a_srs EPSG:XXXX {name})")
+        raise DemError(f"{name}: cannot reproject it from {crs_label(src_crs)} to {crs_label(dst_crs)} "
+                       f"(GDAL: {why}): {todo}") from None
+
+
+def as_typed(v) -> str:
+    """A coordinate in a message as the user would have typed it: -139.15, 601000, 60.81938 (12
+    significant digits: rounding to 0.1 hid that -139.15 was a longitude)."""
+    return f"{float(v):.12g}"
+
+
+def lonlat_hint(xs, ys, bounds, dem: str = "DEM", lonlat_options: str = "") -> str:
+    """A hint for a point refused as outside a DEM: where every (x, y) could be a longitude and a
+    latitude (|x| <= 360, |y| <= 90) while the DEM's extent ``bounds`` (xmin, ymin, xmax, ymax)
+    [m] lies wholly beyond that range, degrees were typed where metres are expected; ''
+    otherwise (a DEM in a local CRS near its origin cannot tell the two apart). ``lonlat_options``
+    names the command's own options for degrees, if it has them."""
+    xs = np.atleast_1d(np.asarray(xs, float))
+    ys = np.atleast_1d(np.asarray(ys, float))
+    if not (np.all(np.abs(xs) <= 360.0) and np.all(np.abs(ys) <= 90.0)):
+        return ""
+    if not (np.any(xs) or np.any(ys)):  # (0, 0) is a placeholder or an origin, not a place
+        return ""
+    xmin, ymin, xmax, ymax = bounds
+    if xmax >= -360.0 and xmin <= 360.0 and ymax >= -90.0 and ymin <= 90.0:
+        return ""
+    return ("; these look like longitude/latitude: give metres in the work CRS (`skyfix info "
+            f"{dem}` shows its extent)" + (f", or give them with {lonlat_options}" if lonlat_options
+                                            else ""))
 
 
 def source_footprint(src_crs, src_transform, src_shape, dst_crs, dst_transform, dst_shape):

@@ -62,6 +62,6 @@ def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_dis
         click.echo(f"{r.path}: already complete, {r.n_blocks} block{'s' * (r.n_blocks != 1)}, "
                    f"{r.size_bytes / 1e6:.1f} MB on disk: nothing to do")
     elif r.built or not r.indexed:
-        click.echo(f"{r.path}: {r.n_blocks} blocks ({r.built} built now, {r.resumed_from} already "
+        click.echo(f"{r.path}: {r.n_blocks} block{'s' * (r.n_blocks != 1)} ({r.built} built now, {r.resumed_from} already "
                    f"there), {r.positions} skylines in {r.seconds:.1f} s ({r.skylines_per_s:,.0f}/s), "
                    f"{r.size_bytes / 1e6:.1f} MB on disk")

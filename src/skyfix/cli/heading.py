@@ -91,7 +91,7 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
     # a position given as lon/lat is named so: the x/y it became mean nothing to its giver
     dem.require_inside(np.array([x]), np.array([y]), "rough position" if lon is None else
-                       f"rough position lon {lon:g}, lat {lat:g}, which is")
+                       f"rough position lon {lon:g}, lat {lat:g}, which is", lonlat_options="--lon/--lat")
     frames = []  # the frames' detected rows: a narrow view is also solved in the image plane
     prof, pp, pr, cam_h = read_profile(acq, profile_path, frames, detector)
     h = camera_height_m if camera_height_m is not None else (cam_h if cam_h is not None else 1.5)

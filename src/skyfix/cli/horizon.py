@@ -49,6 +49,8 @@ def horizon(dem_path, x, y, lon, lat, camera_height_m, planet, azimuth_bins, max
     check_outputs(overwrite, ("--plot", plot, PLOT_FORMATS))
     dem = load_dems([dem_path, *more_dems], crs=crs) if more_dems else load_dem(dem_path, crs=crs)
     x, y = point_xy(x, y, lon, lat, dem.crs_wkt)
+    # checked here, not only in the renderer: this command can tell degrees typed for --x/--y
+    dem.require_inside(np.array([x]), np.array([y]), "point", lonlat_options="--lon/--lat")
     hb = render_horizon(dem, x, y, camera_height_m=camera_height_m, planet=planet,
                         azimuth_bins=azimuth_bins, max_distance_m=max_distance_m)
     el = hb.elevation_deg[0].astype(float)

@@ -6,6 +6,11 @@ from __future__ import annotations
 import click
 
 
+#: suffixes of the DEM files users give (GeoTIFF, Erdas, VRT, SRTM .hgt, ASCII grid, netCDF, ...)
+RASTER_SUFFIXES = (".tif", ".tiff", ".img", ".vrt", ".hgt", ".dem", ".asc", ".nc", ".jp2", ".bil",
+                   ".flt", ".grd", ".dt0", ".dt1", ".dt2")
+
+
 @click.command("info")
 @click.argument("db", type=click.Path())
 @click.option("--json", "as_json", is_flag=True, help="Print the description as JSON.")
@@ -20,7 +25,15 @@ def info(db, as_json):
     from ..database import describe
     from ..errors import DatabaseError
 
-    if Path(db).is_file():
+    path = Path(db)
+    if not path.exists() and path.suffix.lower() != ".zarr":
+        # Only a .zarr path is taken for a database that is yet to be built; anything else that is
+        # not there may have been either, so the message assumes neither.
+        from ..errors import SkyfixError
+
+        raise SkyfixError(f"DEM file {db} does not exist" if path.suffix.lower() in RASTER_SUFFIXES
+                          else f"no such file or folder: {db} (give a DEM or a skyline database)")
+    if path.is_file():
         d = describe_dem(db)
         click.echo(to_json(d, indent=1) if as_json else "\n".join(f"{k:12s} {v}" for k, v in _dem_lines(d)))
         return
@@ -38,6 +51,7 @@ def _print(d: dict) -> None:
     p = d["planet"]
     xmin, ymin, xmax, ymax = g["bounds"]
     maxd = "DEM edge" if d["max_distance_m"] is None else f"{d['max_distance_m']:g} m"
+    blocks = f"{d['n_blocks']} block{'s' * (d['n_blocks'] != 1)}"
     lines = [
         f"database     {d['path']} ({d['format']}, skyfix {d['software_version']})",
         f"crs          {d['crs']}",
@@ -48,11 +62,11 @@ def _print(d: dict) -> None:
         f"rays to {maxd}, planet {p['name']} (R {p['radius_m']:.0f} m, k {p['refraction_k']:g}), "
         f"stored in steps of {d['scale_deg']:g} deg, rendered by the {d['renderer']}",
         f"dem          {d['dem']['source']} (sha256 {d['dem']['sha256'][:16]}...)",
-        f"completeness {d['blocks_done']} of {d['n_blocks']} blocks"
+        f"completeness {d['blocks_done']} of {blocks}"
         + (f" built, DAMAGED: {len(d['blocks_data_missing'])} of them without their data files"
            if d["blocks_data_missing"] else
            " (complete)" if d["complete"] else " (INCOMPLETE: rerun the build command to finish)"),
-        f"coarse index {d['coarse_index_blocks']} of {d['n_blocks']} blocks"
+        f"coarse index {d['coarse_index_blocks']} of {blocks}"
         + (" (the search decodes only the blocks its coarse pass keeps)"
            if d["coarse_index_blocks"] == d["n_blocks"] else
            " (rerun the build command to add it: the search then decodes only the blocks it needs)"

@@ -16,12 +16,18 @@ from .main import note
 from .options import check_point_options, dem_sigma, detector_option, point_xy
 
 
+#: this command's options for a prior position in degrees
+LONLAT_PRIOR = "--prior-lon/--prior-lat"
+
+
 def _check_prior_area(db, dem, prior, radius_m) -> None:
     """Refuse, before any image is read, a prior disc (centre [m], radius [m]) that holds no
     database position, or, searched on the DEM alone, whose centre lies off the DEM."""
     if prior is None:
         return
     import numpy as np
+
+    from ..workcrs import as_typed, lonlat_hint
 
     if db is not None:
         xs, ys = np.asarray(db.x_coords), np.asarray(db.y_coords)
@@ -30,12 +36,15 @@ def _check_prior_area(db, dem, prior, radius_m) -> None:
         gy = ys[np.argmin(np.abs(ys - prior[1]))]
         d = float(np.hypot(gx - prior[0], gy - prior[1]))
         if d > radius_m:
+            span = (xs.min(), ys.min(), xs.max(), ys.max())
             raise ParameterError(
-                f"no database position lies inside the prior area ({prior[0]:.1f}, {prior[1]:.1f}) "
-                f"+- {radius_m:g} m: the nearest is {d:.1f} m away; the database spans x "
-                f"{xs.min():.1f}..{xs.max():.1f}, y {ys.min():.1f}..{ys.max():.1f}")
+                f"no database position lies inside the prior area ({as_typed(prior[0])}, "
+                f"{as_typed(prior[1])}) +- {radius_m:g} m: the nearest is {d:.1f} m away; the database "
+                f"spans x {span[0]:.1f}..{span[2]:.1f}, y {span[1]:.1f}..{span[3]:.1f}"
+                + lonlat_hint(prior[0], prior[1], span, "DB", LONLAT_PRIOR))
     elif dem is not None:
-        dem.require_inside(np.array([prior[0]]), np.array([prior[1]]), "prior position")
+        dem.require_inside(np.array([prior[0]]), np.array([prior[1]]), "prior position",
+                           lonlat_options=LONLAT_PRIOR)
 
 
 def _check_db_dem(db, dem, db_path, dem_path, force) -> list[str]:
