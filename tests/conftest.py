@@ -3,6 +3,7 @@ synthetic colour scene with a known skyline."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -71,3 +72,16 @@ def colour_scene(rows, height=200, *, seed=0, clouds=False):
 def score_rows(sk, truth):
     """score_skyline of a detection against truth rows (one per column, NaN = no skyline)."""
     return score_skyline(sk, Skyline(rows=truth, width=truth.size, height=sk.height))
+
+
+@pytest.fixture(autouse=True)
+def _opencv_log_level_restored():
+    """``skyfix -q`` run in process sets OPENCV_LOG_LEVEL in os.environ (read when OpenCV loads);
+    a later test's subprocess inherited it and the test of -q silencing OpenCV passed or failed
+    by test order."""
+    before = os.environ.get("OPENCV_LOG_LEVEL")
+    yield
+    if before is None:
+        os.environ.pop("OPENCV_LOG_LEVEL", None)
+    else:
+        os.environ["OPENCV_LOG_LEVEL"] = before
