@@ -213,3 +213,24 @@ def test_a_heading_whose_two_solves_disagree_says_so_in_its_notes(dem_path, monk
         assert h.confidence <= SOLVES_DISAGREE_CONFIDENCE
         assert said == [f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
                         "heading lies more than 1 deg from the profile fit's"]
+
+
+def test_a_tilt_given_wrong_is_said_where_the_attitude_leaves_the_prior(dem_path, tmp_path):
+    """A mast tilted 15 deg declared level: the skyline fits that tilt as pitch or roll, with full
+    confidence (the review measured roll -16 deg at 1.0); the answer must say it left the
+    inclinometer's prior by more than a prior may be off. The truthful file says nothing."""
+    acq = _frame(dem_path, tmp_path / "acq", yaw=123.0, pan=90.0, tilt=15.0, prior=(2.0, -1.5))
+    args = ("attitude", acq, "--dem", dem_path, "--x", X, "--y", Y, "--heading-prior-deg", 125.0,
+            "--prior-north", "grid")
+    r = run(*args)
+    assert r.exit_code == 0, r.output
+    assert not [n for n in json.loads(r.stdout)["notes"] if "inclinometer" in n]
+    meta = json.loads((acq / "acquisition.json").read_text())
+    meta["frames"][0]["tilt_deg"] = 0.0
+    (acq / "acquisition.json").write_text(json.dumps(meta))
+    r = run(*args)
+    assert r.exit_code == 0, r.output
+    d = json.loads(r.stdout)
+    assert abs(d["roll_deg"] + 1.5) > 10.0 or abs(d["pitch_deg"] - 2.0) > 10.0  # the tilt moved
+    assert any("from the inclinometer's prior" in n and "check the frames' tilt_deg" in n
+               for n in d["notes"]), d["notes"]

@@ -114,3 +114,21 @@ def crs_and_lonlat(crs_wkt: str, x: float, y: float):
     except Exception:  # noqa: BLE001 - a CRS without a geographic link gives no lon/lat
         lon = lat = float("nan")
     return name, float(lon), float(lat)
+
+
+#: [deg] how far the attitude found may lie from the inclinometer's before a fix says so: the
+#: acquisition convention allows a prior wrong by up to this much
+PRIOR_TRUST_DEG = 10.0
+
+
+def prior_disagreement(pitch_deg, roll_deg, prior_pitch_deg, prior_roll_deg) -> tuple:
+    """A note (a 1-tuple) when the attitude found [deg] tilts more than :data:`PRIOR_TRUST_DEG`
+    from the inclinometer's prior, else (): a mast tilt left out of an acquisition, or given
+    with the wrong sign, comes out as that much pitch or roll, and the skyline fits it as well."""
+    off = math.hypot(pitch_deg - prior_pitch_deg, roll_deg - prior_roll_deg)
+    if not off > PRIOR_TRUST_DEG:
+        return ()
+    return (f"the attitude found (pitch {pitch_deg:.1f}, roll {roll_deg:.1f} deg) tilts {off:.1f} "
+            f"deg from the inclinometer's prior (pitch {prior_pitch_deg:.1f}, roll "
+            f"{prior_roll_deg:.1f}): more than the {PRIOR_TRUST_DEG:g} deg a prior may be off; "
+            "check the frames' tilt_deg and the prior",)

@@ -16,7 +16,8 @@ from ..north import heading_360, meridian_convergence_deg, true_heading_deg, wra
 from .attitude import fit_attitude
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
                          load_confidence_model, residual_correlation_bins, structureless_cap)
-from .fix import DETERMINED_SIGMA_DEG, UNKNOWN_HEADING_SIGMA_DEG, HeadingFix, crs_and_lonlat
+from .fix import (DETERMINED_SIGMA_DEG, UNKNOWN_HEADING_SIGMA_DEG, HeadingFix, crs_and_lonlat,
+                  prior_disagreement)
 from .forward import body_profile, harmonic_tilt, residual_profile
 from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
                           image_plane_attitude, view_span_deg)
@@ -185,6 +186,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)
         notes = (*notes, f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
                          "heading lies more than 1 deg from the profile fit's")
+    notes = (*notes, *prior_disagreement(pitch, roll, prior_pitch_deg, prior_roll_deg))
     grid = heading_360(yaw)
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     crs, lon, lat = crs_and_lonlat(dem.crs_wkt, x, y)

@@ -41,7 +41,7 @@ from .confidence import (calibrated_sigma, confidence_features, confidence_from_
                          load_confidence_model, position_sigma, residual_correlation_bins,
                          structureless_cap)
 from .config import PoseConfig
-from .fix import UNKNOWN_HEADING_SIGMA_DEG, Fix, crs_and_lonlat
+from .fix import UNKNOWN_HEADING_SIGMA_DEG, Fix, crs_and_lonlat, prior_disagreement
 from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
                           image_plane_attitude, view_span_deg)
 from .map_error import fit_map_covariance
@@ -389,6 +389,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
             log.info("confidence capped at %s: %s", DEGENERATE_CAP, r)
     if height_gap > 0:
         psig = math.hypot(psig, height_gap)
+    notes += prior_disagreement(pitch, roll, prior_pitch_deg, prior_roll_deg)
     if dem is None:
         notes.append("pitch_deg and roll_deg are the attitude prior echoed (no --dem to estimate "
                      "them); heading and position come from the database grid")
