@@ -60,7 +60,7 @@ def check_scenario_options(scenario: str) -> None:
 
 
 @click.command()
-@click.option("--dem", "dem_path", required=True, type=click.Path(dir_okay=False), help="DEM GeoTIFF.")
+@click.option("--dem", "dem_path", required=True, type=click.Path(dir_okay=False), help="DEM: any raster GDAL reads (GeoTIFF, PDS3 .IMG, ...).")
 @click.option("--scenario", type=click.Choice(["1", "2", "3", "traverse"]), required=True,
               help="1: 7x7 km database search; 2: 40x40 m prior, DEM only; 3: heading only; "
                    "traverse: a simulated traverse fused with odometry (--length-m, --stop-spacing-m, "
