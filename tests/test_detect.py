@@ -535,9 +535,9 @@ def test_bayes_on_a_wide_camera_needs_the_sure_sky_threshold(tmp_path):
     assert score_skyline(detect_skyline(img, method="bayes"), truth)["missed_rate"] > 0.5
 
 
-def test_training_recipe_learns_synthetic_sky():
+def test_training_recipe_learns_synthetic_sky(tmp_path):
     # train on synthetic images only, then classify a held-out one (no dev data needed)
-    from skyfix.detect.skymodel import fit_sky_model, training_pixels
+    from skyfix.detect.skymodel import fit_sky_model, load_sky_model, training_pixels
 
     parts = []
     for seed in range(3):
@@ -546,6 +546,10 @@ def test_training_recipe_learns_synthetic_sky():
         sky = np.arange(160)[:, None] < rows[None, :]
         parts.append(training_pixels(img, sky))
     model, _ = fit_sky_model(parts, per_image=5000, max_iter=20)
+    # saved and read back as scripts/train_sky_model.py and the detector do (the save had
+    # imported skyfix.detect._io, which does not exist: no model could be written)
+    model.save(tmp_path / "sky.npz")
+    model = load_sky_model(tmp_path / "sky.npz")
     rows = 90 - 0.2 * np.arange(260)
     img, _ = synth(rows, seed=30)
     from skyfix.detect.image import fill_invalid, to_float_gray, trusted, valid_mask

@@ -242,7 +242,7 @@ class SkyModel:
         return self.__dict__["_elim"]
 
     def save(self, path):
-        from ._io import atomic_path
+        from .._io import atomic_path
 
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as fh:
