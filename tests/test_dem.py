@@ -575,3 +575,22 @@ def test_a_raster_of_no_data_alone_is_refused(tmp_path, crs, step):
                       from_origin(*origin, step, step), crs, np.nan)
     with pytest.raises(DemError, match="no valid heights"):
         load_dem(path)
+
+
+def test_info_json_gives_the_voids_as_numbers_too():
+    """`skyfix info --json` gave the voids as a sentence alone; a program reads the counts."""
+    import json
+
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+
+    path = shared_dem_path("alps_srtm3_n46e008")
+    r = CliRunner().invoke(cli, ["info", str(path), "--json"])
+    assert r.exit_code == 0, r.output
+    d = json.loads(r.stdout[r.stdout.index("{"):])
+    dem = load_dem(path)
+    assert d["void_cells"] == {"void": dem.voids.n_void, "filled": dem.voids.n_filled,
+                               "left_masked": dem.voids.n_remaining,
+                               "outside_data": dem.voids.n_outside}
+    assert d["void_cells"]["void"] > 0 and f"{d['void_cells']['void']} void cells" in d["voids"]

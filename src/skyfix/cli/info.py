@@ -80,7 +80,8 @@ def _print(d: dict) -> None:
 
 def describe_dem(path) -> dict:
     """What ``skyfix`` makes of a DEM file: its own CRS and body, the work CRS it is read into,
-    extent [m], cell size [m], height range [m], voids and the work CRS's scale error."""
+    extent [m], cell size [m], height range [m], voids (a sentence, and ``void_cells``: counts of
+    cells) and the work CRS's scale error (a fraction: 0.001 stretches distances by 0.1 %)."""
     import numpy as np
     import rasterio
     from pyproj import CRS
@@ -113,6 +114,9 @@ def describe_dem(path) -> dict:
         "cell_m": [dem.dx, dem.dy], "shape": list(dem.z.shape),
         "height_m": [float(np.nanmin(dem.z)), float(np.nanmax(dem.z))],
         "voids": str(dem.voids),
+        # the same as numbers, for a program: the sentence above is for people
+        "void_cells": {"void": dem.voids.n_void, "filled": dem.voids.n_filled,
+                       "left_masked": dem.voids.n_remaining, "outside_data": dem.voids.n_outside},
         "scale_error": dem.scale_error,
         "checksum_sha256": dem.checksum,
     }
