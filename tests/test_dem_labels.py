@@ -69,6 +69,21 @@ def test_metres_labelled_degrees_are_one_line_naming_the_coordinates(tmp_path, g
         load_dem(mislabel)
 
 
+def test_degrees_labelled_projected_are_one_line_naming_the_coordinates(tmp_path):
+    """The Alps tile (3-arcsecond cells) labelled UTM 32N was read as a DEM 1 m wide of 0.8 mm
+    cells; a real projected DEM of small coordinates (a local grid) still reads."""
+    alps = shared_dem_path("alps_srtm3_n46e008")
+    mislabel = relabel(alps, tmp_path / "alps_utm.tif", crs="EPSG:32632")
+    r = run("info", mislabel)
+    assert_clean_error(r, "alps_utm.tif: its CRS EPSG:32632 is projected", "look like longitudes and "
+                       "latitudes", "gdal_edit.py -a_srs EPSG:4326 alps_utm.tif")
+    from rasterio.transform import from_origin
+
+    local = relabel(glacier_path := shared_dem_path("south_glacier_20m"), tmp_path / "local.tif",
+                    transform=from_origin(0.0, 6000.0, 20.0, 20.0))
+    assert load_dem(local).dx == pytest.approx(20.0, rel=0.01) and glacier_path.exists()  # read
+
+
 def test_a_reprojection_gdal_refuses_is_one_line_naming_both_crss(glacier):
     # an orthographic view centred on the far side of the Earth holds no point of Alaska
     far = "+proj=ortho +lat_0=-60 +lon_0=40 +datum=WGS84 +units=m"

@@ -20,10 +20,10 @@ import numpy as np
 from .errors import DemError, OutsideDemError, ParameterError
 from .planets import EARTH, planet_from_crs
 from .voids import VoidReport, collar_cells, fill_voids
-from .workcrs import (MAX_SCALE_ERROR, as_typed, check_lonlat_extent, crop_to_footprint, crs_label,
-                      direction_error_deg, earth_work_crs, geographic_bounds, horizontal_crs,
-                      local_tm_crs, lonlat_hint, metric_twin, reprojection_errors,
-                      scale_error, source_footprint, units_in_metres)
+from .workcrs import (MAX_SCALE_ERROR, as_typed, check_lonlat_extent, check_projected_extent,
+                      crop_to_footprint, crs_label, direction_error_deg, earth_work_crs,
+                      geographic_bounds, horizontal_crs, local_tm_crs, lonlat_hint, metric_twin,
+                      reprojection_errors, scale_error, source_footprint, units_in_metres)
 
 log = logging.getLogger(__name__)
 
@@ -253,6 +253,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
             )
         src_crs = CRS.from_user_input(src.crs.to_wkt())
         check_lonlat_extent(src_crs, src.bounds, path.name)  # before a transform trips on it
+        check_projected_extent(src_crs, src.bounds, src.res[0], path.name)
         advise = False  # a projected Earth DEM read into its UTM zone: say how to write it once
         zfactor, xyfactor = units_in_metres((src.units or (None,))[0], src_crs, path.name)
         transform, bounds = src.transform, tuple(src.bounds)

@@ -237,6 +237,26 @@ def check_lonlat_extent(crs, bounds, name: str) -> None:
                    "its coordinates are in)")
 
 
+def check_projected_extent(crs, bounds, cell, name: str) -> None:
+    """Refuse a raster whose CRS is projected while its coordinates (``bounds``) fit longitudes
+    and latitudes and its cells (``cell``, in the CRS's unit) are under a millimetre: degrees
+    under a projected label (a 3-arcsecond tile read as a 100 m wide DEM of 0.8 mm cells),
+    which no real DEM is."""
+    from pyproj import CRS
+
+    from .errors import DemError
+
+    if not CRS.from_user_input(crs).is_projected:
+        return
+    w, s, e, n = bounds
+    if not (max(abs(w), abs(e)) <= 360.0 and max(abs(s), abs(n)) <= 90.0 and abs(cell) < 1e-3):
+        return
+    raise DemError(f"{name}: its CRS {crs_label(crs)} is projected but its coordinates x {w:.10g}..{e:.10g}, "
+                   f"y {s:.10g}..{n:.10g} with cells of {abs(cell):.3g} look like longitudes and "
+                   "latitudes: the file's CRS is wrong; set the right one (gdal_edit.py -a_srs "
+                   f"EPSG:4326 {name} for WGS 84 degrees, or the geographic CRS of its body)")
+
+
 @contextmanager
 def reprojection_errors(name: str, src_crs, dst_crs, *, chosen: bool = False):
     """Turn GDAL's refusal to carry a raster from ``src_crs`` to ``dst_crs`` ("Too many points
