@@ -85,3 +85,23 @@ def _opencv_log_level_restored():
         os.environ.pop("OPENCV_LOG_LEVEL", None)
     else:
         os.environ["OPENCV_LOG_LEVEL"] = before
+
+
+def cli_run(*args):
+    """``skyfix ARGS`` in process (click's runner), every argument as a string."""
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def assert_one_error_line(result, *needles):
+    """Exit status 2, exactly one ``Error:`` line, holding every needle; no traceback."""
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    errors = [ln for ln in result.output.splitlines() if ln.startswith("Error:")]
+    assert len(errors) == 1, result.output
+    for needle in needles:
+        assert needle in errors[0], result.output

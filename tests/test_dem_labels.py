@@ -9,27 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from conftest import shared_dem_path
-from skyfix.cli.main import cli
+from conftest import assert_one_error_line as assert_clean_error
+from conftest import cli_run, shared_dem_path
 from skyfix.dem import load_dem
 from skyfix.errors import DemError, SkyfixError
 
-
-def run(*args):
-    return CliRunner().invoke(cli, [str(a) for a in args])
-
-
-def assert_clean_error(result, *needles):
-    """Exit status 2, one ``Error:`` line holding every needle, no traceback."""
-    assert result.exit_code == 2, result.output
-    assert "Traceback" not in result.output
-    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
-    errors = [ln for ln in result.output.splitlines() if ln.startswith("Error:")]
-    assert len(errors) == 1, result.output
-    for needle in needles:
-        assert needle in errors[0], result.output
+run = cli_run
 
 
 @pytest.fixture
