@@ -64,10 +64,10 @@ centred 0.3 / 0.5 of each DEM's half-extent from its middle, load 0.4-1.8): p99 
 all 12 blocks (bar 0.01), beyond 0.01 deg in 0.000-0.053 % of bins (the Sierra's the most); max
 <= 0.1 deg on 9 of 12: Alps 0.149 and 0.322, glacier 0.142 (others 0.041-0.098); camera 30 m at
 0.3, -0.3: max 0.035-0.053 on all four. Twelve more blocks (0.2, 0.5 / -0.5, -0.2 / 0.0, -0.5;
-one thread): p99 <= 0.00085 deg, max <= 0.1 on 5 of 12 (0.102-0.350 on the others, 1-129 bins
+one thread): p99 <= 0.00085 deg, max <= 0.1 on 4 of 12 (0.102-0.350 on the others, 1-129 bins
 of 14.5 M each). The middle Sierra block itself, on the DEM kept whole (read since 2026-11-28),
 gives max 0.126 (1 bin), not 0.083. A longer exact near field (``near_m`` 150) fixed some blocks'
-worst bins and broke others' (5 -> 7 of those 12; the generated DEM's 0.068 -> 0.159), for the
+worst bins and broke others' (4 -> 7 of those 12; the generated DEM's 0.068 -> 0.159), for the
 same CPU: not taken. The max bar is a handful of bins in millions, from several causes.
 ``max_distance_m`` is not supported (a hull cannot forget terrain behind the limit); callers use
 the per-point kernel then.
