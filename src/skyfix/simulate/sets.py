@@ -75,6 +75,17 @@ def _check_area(dem: Dem, area) -> tuple[float, float, float, float]:
     return xmin, ymin, xmax, ymax
 
 
+#: unit vectors (east, north) of the 8 directions a position is kept clear of the data's edge in
+_DIRECTIONS = np.stack([np.sin(np.radians(np.arange(0.0, 360.0, 45.0))),
+                        np.cos(np.radians(np.arange(0.0, 360.0, 45.0)))], 1)
+
+
+def _clear_of_data_edge(dem: Dem, x: float, y: float, clear_m: float) -> bool:
+    """Whether the DEM has heights ``clear_m`` [m] from (x, y) [m] in all 8 directions."""
+    ring = 0.999 * clear_m * _DIRECTIONS  # a hair short: a full grid's own edge is inside
+    return bool(np.isfinite(dem.height_at(x + ring[:, 0], y + ring[:, 1])).all())
+
+
 def _draw_positions(dem: Dem, area, n: int, rng: np.random.Generator,
                     clear_m: float = 0.0) -> np.ndarray:
     """n positions [m] with heights in ``area``; with ``clear_m`` [m], also heights 8 points
@@ -82,15 +93,12 @@ def _draw_positions(dem: Dem, area, n: int, rng: np.random.Generator,
     from its grid's edge, where a reprojected DEM's corners hold none (its cases had stood 68 m
     from the end of the terrain)."""
     xmin, ymin, xmax, ymax = area
-    a = np.radians(np.arange(0.0, 360.0, 45.0))
-    ring = 0.999 * clear_m * np.stack([np.sin(a), np.cos(a)], 1)  # within the grid on a full one
     pts = []
     for _ in range(200 * n + 100):
         if len(pts) >= n:
             break
         x, y = rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)
-        if np.isfinite(dem.height_at(x, y)) and (
-                clear_m <= 0 or np.isfinite(dem.height_at(x + ring[:, 0], y + ring[:, 1])).all()):
+        if np.isfinite(dem.height_at(x, y)) and (clear_m <= 0 or _clear_of_data_edge(dem, x, y, clear_m)):
             pts.append((x, y))
     if len(pts) < n:
         raise ParameterError("could not draw positions with known heights in the area: the DEM is "
@@ -100,9 +108,7 @@ def _draw_positions(dem: Dem, area, n: int, rng: np.random.Generator,
 
 def _near_data_edge(dem: Dem, pos: np.ndarray, clear_m: float) -> int:
     """How many positions [m] have a point without height ``clear_m`` [m] away (8 directions)."""
-    a = np.radians(np.arange(0.0, 360.0, 45.0))
-    ring = 0.999 * clear_m * np.stack([np.sin(a), np.cos(a)], 1)
-    return sum(not np.isfinite(dem.height_at(x + ring[:, 0], y + ring[:, 1])).all() for x, y in pos)
+    return sum(not _clear_of_data_edge(dem, x, y, clear_m) for x, y in pos)
 
 
 def plan_set(dem: Dem, name: str, cases: int, seed: int, *, area=None, camera: str | Camera = "navcam",
