@@ -65,10 +65,9 @@ def check_folder_output(path) -> Path:
     blocker = _file_in_the_way(path)
     if blocker is not None:
         raise cannot_write(path, f"{blocker} is a file, not a folder")
-    anc = _nearest_existing(path)
-    kind = _file_system_type(anc) if anc.is_dir() else None
-    if kind in KERNEL_FILE_SYSTEMS:  # said now: creating it fails late, naming a staging folder
-        raise cannot_write(path, _kernel_file_system(anc, kind))
+    kernel = _on_kernel_file_system(path)
+    if kernel is not None:  # said now: creating it fails late, naming a staging folder
+        raise cannot_write(path, kernel)
     return path
 
 
@@ -90,10 +89,9 @@ def writing_to(out):
         blocker = _file_in_the_way(Path(out).parent)
         if blocker is not None:
             reason, where = f"{blocker} is a file, not a folder", ""
-        anc = _nearest_existing(Path(out).parent)
-        kind = _file_system_type(anc) if anc.is_dir() else None
-        if kind in KERNEL_FILE_SYSTEMS:  # /proc says "No such file or directory": not the reason
-            reason, where = _kernel_file_system(anc, kind), ""
+        kernel = _on_kernel_file_system(Path(out).parent)
+        if kernel is not None:  # /proc says "No such file or directory": not the reason
+            reason, where = kernel, ""
         raise cannot_write(out, f"{reason}{where}; choose another --out") from None
 
 
@@ -150,6 +148,14 @@ def _unwritable(folder: Path, e: OSError) -> str:
     if kind in KERNEL_FILE_SYSTEMS:
         return _kernel_file_system(folder, kind)
     return f"folder {folder} is not writable ({_reason(e)})"
+
+
+def _on_kernel_file_system(path: Path) -> str | None:
+    """Why nothing can be created at ``path`` when its nearest existing folder lies on a file
+    system the kernel serves (/proc, /sys), else None."""
+    anc = _nearest_existing(path)
+    kind = _file_system_type(anc) if anc.is_dir() else None
+    return _kernel_file_system(anc, kind) if kind in KERNEL_FILE_SYSTEMS else None
 
 
 def _kernel_file_system(folder: Path, kind: str) -> str:
