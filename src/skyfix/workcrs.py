@@ -216,6 +216,13 @@ def crs_label(crs) -> str:
         return c.to_proj4() or c.name or "an unnamed CRS"
 
 
+def fits_lonlat(xs, ys) -> bool:
+    """Whether every x could be a longitude (|x| <= 360: east longitudes up to 360 pass, as
+    Mars's are often given) and every y a latitude (|y| <= 90) [deg]."""
+    return bool(np.all(np.abs(np.asarray(xs, float)) <= 360.0)
+                and np.all(np.abs(np.asarray(ys, float)) <= 90.0))
+
+
 def check_lonlat_extent(crs, bounds, name: str) -> None:
     """Refuse a raster whose CRS is geographic while its coordinates (``bounds``: xmin, ymin,
     xmax, ymax) cannot be longitudes and latitudes: beyond +-360 and +-90 deg they are metres
@@ -229,7 +236,7 @@ def check_lonlat_extent(crs, bounds, name: str) -> None:
     if not CRS.from_user_input(crs).is_geographic:
         return
     w, s, e, n = bounds
-    if max(abs(w), abs(e)) <= 360.0 and max(abs(s), abs(n)) <= 90.0:
+    if fits_lonlat((w, e), (s, n)):
         return
     raise DemError(f"{name}: its CRS {crs_label(crs)} is geographic but its coordinates x {w:.10g}..{e:.10g}, "
                    f"y {s:.10g}..{n:.10g} are not longitudes and latitudes: the file's CRS is wrong; set the "
@@ -249,7 +256,7 @@ def check_projected_extent(crs, bounds, cell, name: str) -> None:
     if not CRS.from_user_input(crs).is_projected:
         return
     w, s, e, n = bounds
-    if not (max(abs(w), abs(e)) <= 360.0 and max(abs(s), abs(n)) <= 90.0 and abs(cell) < 1e-3):
+    if not (fits_lonlat((w, e), (s, n)) and abs(cell) < 1e-3):
         return
     raise DemError(f"{name}: its CRS {crs_label(crs)} is projected but its coordinates x {w:.10g}..{e:.10g}, "
                    f"y {s:.10g}..{n:.10g} with cells of {abs(cell):.3g} look like longitudes and "
@@ -293,7 +300,7 @@ def lonlat_hint(xs, ys, bounds, dem: str = "DEM", lonlat_options: str = "") -> s
     names the command's own options for degrees, if it has them."""
     xs = np.atleast_1d(np.asarray(xs, float))
     ys = np.atleast_1d(np.asarray(ys, float))
-    if not (np.all(np.abs(xs) <= 360.0) and np.all(np.abs(ys) <= 90.0)):
+    if not fits_lonlat(xs, ys):
         return ""
     if not (np.any(xs) or np.any(ys)):  # (0, 0) is a placeholder or an origin, not a place
         return ""
