@@ -45,8 +45,8 @@ def collar_cells(void: np.ndarray) -> np.ndarray:
     """The void cells outside the convex hull of the valid ones: a raster's no-data collar (a
     map-projected HiRISE DTM's, the wedges of a grid written by gdalwarp), around the data rather
     than a hole in it. A void with data on both sides (an SRTM tile's, even one on the tile's
-    edge) lies inside the hull. None where there is no void, or no valid cell to hull (a raster
-    of no-data alone, which :func:`fill_voids` refuses)."""
+    edge) lies inside the hull. No cell where there is no void, or no valid cell to hull (a
+    raster of no-data alone, which :func:`fill_voids` refuses)."""
     import cv2
 
     has = ~void

@@ -134,14 +134,14 @@ def evaluate(dem_path, scenario, sets, cases, seed, db_path, area, camera_height
         click.echo(f"wrote {report}")
         return
     scenario = int(scenario)
-    names = {s.strip().upper() for s in sets.split(",") if s.strip()}
-    if names == {"SCOM"} and given("tilt_deg"):
+    set_names = tuple(s.strip().upper() for s in sets.split(",") if s.strip())
+    if set(set_names) == {"SCOM"} and given("tilt_deg"):
         # SCOM tilts each case's camera itself: the run would say nothing and ignore it
         raise ParameterError("--tilt-deg: not read by the set SCOM (it tilts each case's camera so "
                              "that the skyline leaves the top of the frame): drop it, or add a set "
                              "that reads it")
 
-    cfg = EvalConfig(scenario=scenario, sets=tuple(s.strip().upper() for s in sets.split(",") if s.strip()),
+    cfg = EvalConfig(scenario=scenario, sets=set_names,
                      cases=cases, seed=seed, area=tuple(area) if area else None,
                      camera_height_m=camera_height_m, skylines=skylines,
                      tilt_deg=tilt_deg, map_errors=map_errors, dem_sigma_m=dem_sigma_m,

@@ -221,8 +221,8 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
     action = _plan_output(out, params, grid, overwrite)  # refuses, deletes nothing
     if action == "complete":
         n = len(grid.blocks())
-        log.info(f"{out} is already complete, built with these parameters: nothing to do "
-                    "(--overwrite rebuilds it)")
+        log.info("%s is already complete, built with these parameters: nothing to do "
+                 "(--overwrite rebuilds it)", out)
         return BuildResult(out, n, 0, n, 0, 0.0, float("nan"), dir_size(out))
     # The executor starts (the scheduler is reached) before anything is deleted: a bad --scheduler
     # must not cost the database that --overwrite was about to replace.
