@@ -594,3 +594,24 @@ def test_info_json_gives_the_voids_as_numbers_too():
                                "left_masked": dem.voids.n_remaining,
                                "outside_data": dem.voids.n_outside}
     assert d["void_cells"]["void"] > 0 and f"{d['void_cells']['void']} void cells" in d["voids"]
+
+
+def test_info_names_a_crs_without_a_code_in_one_line(tmp_path):
+    """A Mars equirectangular DEM (no EPSG code) had its WKT, dozens of lines, printed twice."""
+    from click.testing import CliRunner
+    from pyproj import CRS
+    from rasterio.transform import from_origin
+
+    from skyfix.cli.main import cli
+
+    crs = CRS.from_proj4("+proj=eqc +lat_ts=0 +lon_0=137 +R=3396190 +units=m +no_defs")
+    z = np.random.default_rng(0).uniform(0, 100, (60, 60)).astype(np.float32)
+    path = _write_tif(tmp_path / "mars.tif", z, from_origin(0.0, 0.0, 20.0, 20.0), crs.to_wkt(), -9999.0)
+    r = CliRunner().invoke(cli, ["info", str(path)])
+    assert r.exit_code == 0, r.output
+    lines = {ln.split(None, 2)[0] + " " + ln.split(None, 2)[1]: ln for ln in r.stdout.splitlines()
+             if ln.startswith(("native crs", "work crs"))}
+    assert set(lines) == {"native crs", "work crs"}
+    for ln in lines.values():
+        assert "+proj=eqc" in ln and "+R=3396190" in ln and "PROJCRS" not in ln and "[" not in ln
+    assert load_dem(path).crs_name.startswith("+proj=eqc")

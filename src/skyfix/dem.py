@@ -189,8 +189,7 @@ def build_max_pyramid(z: np.ndarray) -> list[np.ndarray]:
 
 
 def _crs_name(crs) -> str:
-    auth = crs.to_authority(min_confidence=70)
-    return f"{auth[0]}:{auth[1]}" if auth else (crs.name or "")
+    return crs_label(crs)
 
 
 def file_checksum(path, chunk: int = 1 << 20) -> str:

@@ -87,7 +87,7 @@ def describe_dem(path) -> dict:
     from pyproj import CRS
 
     from ..dem import load_dem
-    from ..workcrs import geographic_bounds, scale_error
+    from ..workcrs import crs_label, geographic_bounds, scale_error
 
     dem = load_dem(path)  # first: it refuses what is no DEM with one clear line
     with rasterio.open(path) as src:
@@ -103,6 +103,8 @@ def describe_dem(path) -> dict:
         "path": str(path),
         "native_crs": (native.to_string() if native is not None else None),
         "native_crs_name": native.name if native is not None else None,
+        # one line for people: a code, a name, or a PROJ string, never a WKT of many lines
+        "native_crs_label": crs_label(native) if native is not None else None,
         "native_size_px": native_size, "native_cell": native_res,
         "native_scale_error": native_err,
         "body": body.to_attr() if body is not None else None,
@@ -126,7 +128,10 @@ def _dem_lines(d: dict):
     body = d["body"] or {"name": "unknown (Earth assumed)", "radius_m": float("nan"), "refraction_k": 0}
     w, s, e, n = d["lonlat_bounds"]
     yield "dem", d["path"]
-    yield "native crs", (f"{d['native_crs_name']} ({d['native_crs']}), {d['native_size_px'][0]} x "
+    code = d["native_crs_label"]
+    named = d["native_crs_name"] not in (None, "", "unknown", code)
+    yield "native crs", (f"{d['native_crs_name'] + ' (' + code + ')' if named else code}, "
+                         f"{d['native_size_px'][0]} x "
                          f"{d['native_size_px'][1]} px of {d['native_cell'][0]:g} x {d['native_cell'][1]:g}"
                          + (f", scale error {100 * d['native_scale_error']:.3f} %"
                             if d["native_scale_error"] == d["native_scale_error"] else ""))
