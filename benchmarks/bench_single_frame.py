@@ -13,6 +13,13 @@ projected (``acquisition_profile``) and ``estimate_heading`` on the map at the t
 the map. Prints, with the load average: heading within 1 deg, pitch and roll within 0.5 deg,
 the fixes at confidence >= 0.9 and how many are right, time per frame. A frame whose skyline
 cannot be detected counts as a miss (the command refuses it with exit 2).
+
+The same figures are also given for the frames a map can serve, chosen before any solve from what
+the simulation knows of each frame, never from its outcome: its terrain skyline spans at least a
+third of the frame's width (the issue's own partial-skyline case), and the skyline in view lies,
+in the median column, beyond ``--map-sigma-m / tan(0.5 deg)`` (229 m for a 2 m map error: nearer,
+the map's height error alone moves the horizon by more than the pitch and roll bar). A frame looking
+up a slope 25 m away sees the DEM's own cell, not a landmark.
 """
 
 from __future__ import annotations
@@ -29,6 +36,26 @@ def _ang(a):
     return (a + 180.0) % 360.0 - 180.0
 
 
+def _skyline_columns(case: Path) -> int:
+    """Columns of the frame whose terrain meets the sky, as the simulator recorded them."""
+    import json
+
+    meta = json.loads((case / "acquisition.json").read_text())
+    return int(meta["simulation"]["images"][0]["terrain_skyline_columns"])
+
+
+def _figures(rows, label):
+    he = np.array([r["he"] for r in rows])
+    pe = np.array([r["pe"] for r in rows])
+    re_ = np.array([r["re"] for r in rows])
+    conf = np.array([r["conf"] for r in rows])
+    sure = conf >= 0.9
+    print(f"{label} ({len(rows)} frames): heading within 1 deg {np.mean(he <= 1):.0%}, pitch within "
+          f"0.5 deg {np.mean(pe <= 0.5):.0%}, roll within 0.5 deg {np.mean(re_ <= 0.5):.0%}, refused "
+          f"{sum(not r['ok'] for r in rows)}; confidence >= 0.9: {int(sure.sum())}, "
+          f"{int((he[sure] <= 1).sum())} right")
+
+
 def run_dem(dem_path, out: Path, args) -> list[dict]:
     from skyfix.dem import load_dem
     from skyfix.errors import SkyfixError
@@ -38,6 +65,8 @@ def run_dem(dem_path, out: Path, args) -> list[dict]:
     from skyfix.profile import acquisition_profile, detect_frames
     from skyfix.simulate import simulate_acquisition
     from skyfix.simulate.world import MapErrors, map_offset, world_dem
+
+    from skyfix.horizon import render_horizons
 
     dem = load_dem(dem_path)
     name = Path(dem_path).stem
@@ -59,8 +88,17 @@ def run_dem(dem_path, out: Path, args) -> list[dict]:
                                  pan_start_deg=0.0, tilt_deg=15.0, seed=k, overwrite=True,
                                  attitude_prior=(pitch + float(dpp), roll + float(dpr)))
         acq = load_acquisition(case)
+        # what the frame holds, from the simulation and the map at the truth (not timed, no solve)
+        cols = _skyline_columns(case)
+        hb = render_horizons(dem, [tx + off[0]], [ty + off[1]], camera_height_m=acq.camera_height_m,
+                             azimuth_bins=1440)
+        az = np.arange(1440) * 0.25
+        half = 0.5 * acq.camera.hfov_deg
+        inview = np.abs(_ang(az - yaw)) <= half
+        sky_m = float(np.nanmedian(hb.skyline_distance_m[0][inview])) if inview.any() else 0.0
         t0 = time.perf_counter()
-        row = dict(dem=name, case=k, ok=False, conf=0.0, he=np.inf, pe=np.inf, re=np.inf)
+        row = dict(dem=name, case=k, ok=False, conf=0.0, he=np.inf, pe=np.inf, re=np.inf,
+                   sky_share=cols / acq.camera.width, sky_m=sky_m)
         try:
             skylines = detect_frames(acq, args.detector)
             prof = acquisition_profile(acq, skylines=skylines)
@@ -78,7 +116,8 @@ def run_dem(dem_path, out: Path, args) -> list[dict]:
         rows.append(row)
         print(f"  {name} {k:3d}: " + (f"heading {row['he']:.2f} deg, pitch {row['pe']:.2f}, roll "
                                      f"{row['re']:.2f}, confidence {row['conf']:.2f}" if row["ok"]
-                                     else f"refused: {row['why']}") + f" ({row['seconds']:.1f} s)",
+                                     else f"refused: {row['why']}") + f" ({row['seconds']:.1f} s; skyline "
+              f"over {row['sky_share']:.0%} of the width, {row['sky_m']:.0f} m away in the median column)",
               flush=True)
     return rows
 
@@ -93,6 +132,8 @@ def main(argv=None):
     ap.add_argument("--prior-sigma-deg", type=float, default=5.0)
     ap.add_argument("--heading-offset-deg", type=float, default=5.0)
     ap.add_argument("--detector", default="dp", choices=("dp", "bayes", "net"))
+    ap.add_argument("--map-sigma-m", type=float, default=2.0,
+                    help="the map's height error [m] that sets the nearest skyline a map can serve")
     ap.add_argument("--solve", default="image", choices=("image", "profile"),
                     help="also solve in the image plane (what the CLI does), or the profile fit alone")
     args = ap.parse_args(argv)
@@ -123,6 +164,12 @@ def main(argv=None):
             z = err[ok] / sig
             cover.append(f"{name} {np.mean(z <= 1):.0%} / {np.mean(z <= 2):.0%}")
         print("the error within 1 / 2 of the reported sigmas: " + ", ".join(cover))
+    near_m = args.map_sigma_m / np.tan(np.radians(0.5))
+    served = [r for r in rows if r["sky_share"] >= 1 / 3 and r["sky_m"] >= near_m]
+    print(f"frames a map can serve (skyline over >= 1/3 of the width, beyond {near_m:.0f} m in the "
+          f"median column): {len(served)} of {len(rows)}")
+    _figures(served, "  served")
+    _figures([r for r in rows if r not in served], "  the others")
     for d in args.dem:
         n = Path(d).stem
         k = np.array([r["dem"] == n for r in rows])
