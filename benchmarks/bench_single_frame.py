@@ -61,7 +61,7 @@ def run_dem(dem_path, out: Path, args) -> list[dict]:
     from skyfix.errors import SkyfixError
     from skyfix.formats import Truth, load_acquisition
     from skyfix.pose import estimate_heading
-    from skyfix.pose.image_plane import frames_from_acquisition
+    from skyfix.pose.image_plane import IMAGE_PLANE_RENDER_BINS, attitude_cost, frames_from_acquisition
     from skyfix.profile import acquisition_profile, detect_frames
     from skyfix.simulate import simulate_acquisition
     from skyfix.simulate.world import MapErrors, map_offset, world_dem
@@ -99,6 +99,7 @@ def run_dem(dem_path, out: Path, args) -> list[dict]:
         t0 = time.perf_counter()
         row = dict(dem=name, case=k, ok=False, conf=0.0, he=np.inf, pe=np.inf, re=np.inf,
                    sky_share=cols / acq.camera.width, sky_m=sky_m)
+        frames = None
         try:
             skylines = detect_frames(acq, args.detector)
             prof = acquisition_profile(acq, skylines=skylines)
@@ -119,6 +120,18 @@ def run_dem(dem_path, out: Path, args) -> list[dict]:
                                      else f"refused: {row['why']}") + f" ({row['seconds']:.1f} s; skyline "
               f"over {row['sky_share']:.0%} of the width, {row['sky_m']:.0f} m away in the median column)",
               flush=True)
+        missed = row["he"] > 1 or row["pe"] > 0.5 or row["re"] > 0.5
+        if args.diagnose and row["ok"] and missed and frames:
+            # on the map at the truth's place: the truth's cost against the answer's
+            fine = render_horizons(dem, [tx + off[0]], [ty + off[1]],
+                                   camera_height_m=acq.camera_height_m,
+                                   azimuth_bins=IMAGE_PLANE_RENDER_BINS).elevation_deg[0]
+            ct, mt = attitude_cost(frames, fine, yaw, pitch, roll)
+            ca, ma = attitude_cost(frames, fine, hf.grid_heading_deg, hf.pitch_deg, hf.roll_deg)
+            row["search_missed"] = ct < ca
+            print(f"    the truth costs {ct:.0f} (median {mt:.1f} px), the answer {ca:.0f} "
+                  f"(median {ma:.1f} px): " + ("the search missed the truth" if ct < ca else
+                                               "the map fits the answer better"))
     return rows
 
 
@@ -132,6 +145,9 @@ def main(argv=None):
     ap.add_argument("--prior-sigma-deg", type=float, default=5.0)
     ap.add_argument("--heading-offset-deg", type=float, default=5.0)
     ap.add_argument("--detector", default="dp", choices=("dp", "bayes", "net"))
+    ap.add_argument("--diagnose", action="store_true",
+                    help="for each frame that misses a bar: the truth's cost on the map against the "
+                         "answer's (a search that missed it, or a map that cannot hold it)")
     ap.add_argument("--map-sigma-m", type=float, default=2.0,
                     help="the map's height error [m] that sets the nearest skyline a map can serve")
     ap.add_argument("--solve", default="image", choices=("image", "profile"),
@@ -166,6 +182,10 @@ def main(argv=None):
         print("the error within 1 / 2 of the reported sigmas: " + ", ".join(cover))
     near_m = args.map_sigma_m / np.tan(np.radians(0.5))
     served = [r for r in rows if r["sky_share"] >= 1 / 3 and r["sky_m"] >= near_m]
+    if args.diagnose:
+        seen = [r for r in rows if "search_missed" in r]
+        print(f"of {len(seen)} frames that missed a bar, the search missed the truth in "
+              f"{sum(r['search_missed'] for r in seen)}; the map fits the answer better in the rest")
     print(f"frames a map can serve (skyline over >= 1/3 of the width, beyond {near_m:.0f} m in the "
           f"median column): {len(served)} of {len(rows)}")
     _figures(served, "  served")

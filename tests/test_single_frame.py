@@ -254,3 +254,25 @@ def test_a_tilt_given_wrong_is_said_where_the_attitude_leaves_the_prior(dem_path
     assert abs(d["roll_deg"] + 1.5) > 10.0 or abs(d["pitch_deg"] - 2.0) > 10.0  # the tilt moved
     assert any("from the inclinometer's prior" in n and "check the frames' tilt_deg" in n
                for n in d["notes"]), d["notes"]
+
+
+def test_attitude_cost_tells_the_truth_from_a_wrong_answer():
+    """The diagnosis of single-frame misses rests on it: on rows made from a known attitude, the
+    truth costs nothing and 0 px, an attitude 1 deg off in yaw costs more, by its residuals."""
+    from skyfix.camera import get_camera, r_world_cam
+    from skyfix.pose.image_plane import RANK_SCALE_PX, FrameRows, attitude_cost
+    from skyfix.profile import horizon_rows
+
+    cam = get_camera("navcam")
+    az, el = _synthetic_world()
+    truth = (123.4, 2.1, -1.3)
+    frames = [FrameRows(cam, 20.0, 10.0, horizon_rows(cam, az, el, r_world_cam(*truth, 20.0, 10.0)))]
+    c0, m0 = attitude_cost(frames, el, *truth)
+    assert c0 < 1e-3 and m0 < 0.01
+    c1, m1 = attitude_cost(frames, el, truth[0] + 1.0, truth[1], truth[2])
+    # pitch 1 deg down moves every column by about the focal length's worth of a degree
+    c2, m2 = attitude_cost(frames, el, truth[0], truth[1] + 1.0, truth[2])
+    assert abs(m2 - cam.fy * np.radians(1.0)) < 2.0
+    n = np.isfinite(frames[0].rows[::4]).sum()
+    assert c2 == pytest.approx(n * 0.5 * RANK_SCALE_PX ** 2 * np.log1p((m2 / RANK_SCALE_PX) ** 2), rel=0.05)
+    assert c1 > 10 * max(c0, 1.0) and m1 > 1.0

@@ -202,8 +202,7 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
                                           clamp, iterations)
         return th, r, w
 
-    def fixed_cost(r):
-        return float(np.sum(0.5 * RANK_SCALE_PX ** 2 * np.log1p((r / RANK_SCALE_PX) ** 2)))
+    fixed_cost = _rank_cost
 
     th, r, w = solve([yaw0_deg, pitch0_deg, roll0_deg])
     c0 = fixed_cost(r)
@@ -234,6 +233,22 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
     mad = float(1.4826 * np.median(np.abs(r - np.median(r))))
     return ImageAttitude(float(th[0] % 360.0), float(th[1]), float(th[2]), *map(float, sd), mad,
                          int(obs.size), map_sd)
+
+
+def _rank_cost(r) -> float:
+    """The Cauchy cost at the fixed RANK_SCALE_PX scale of residuals ``r`` [px]."""
+    return float(np.sum(0.5 * RANK_SCALE_PX ** 2 * np.log1p((r / RANK_SCALE_PX) ** 2)))
+
+
+def attitude_cost(frames, world_el_deg, yaw_deg, pitch_deg, roll_deg):
+    """How well an attitude [deg] puts the world horizon (``world_el_deg``, as
+    :func:`fit_attitude_image` takes it) on the detected rows: (the cost that ranks the solve's
+    starts, the median absolute residual [px]). Used to tell a search that missed the truth (the
+    truth costs less than the answer) from a map that cannot hold it (the truth costs more)."""
+    proj = _Projector(frames, world_el_deg)
+    r = proj.observed() - proj.predict(yaw_deg, pitch_deg, roll_deg)
+    r = np.where(np.isfinite(r), r, MISS_PX)
+    return _rank_cost(r), float(np.median(np.abs(r))) if r.size else float("nan")
 
 
 def _map_covariance(proj, th, jac, w, info_inv, dem_sigma_m):
@@ -300,7 +315,7 @@ def view_span_deg(frames) -> float:
     return float(min(360.0, 360.0 - gaps.max() + max(f.camera.hfov_deg for f in frames)))
 
 
-__all__ = ["IMAGE_PLANE_DEM_SIGMA_M", "IMAGE_PLANE_MAX_SPAN_DEG", "MAP_CORRELATION_M",
+__all__ = ["IMAGE_PLANE_DEM_SIGMA_M", "attitude_cost", "IMAGE_PLANE_MAX_SPAN_DEG", "MAP_CORRELATION_M",
            "IMAGE_PLANE_RENDER_BINS", "SOLVES_DISAGREE_CONFIDENCE",
            "FrameRows", "ImageAttitude", "fit_attitude_image", "frames_from_acquisition",
            "image_plane_attitude", "view_span_deg"]
