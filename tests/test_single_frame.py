@@ -276,3 +276,30 @@ def test_attitude_cost_tells_the_truth_from_a_wrong_answer():
     n = np.isfinite(frames[0].rows[::4]).sum()
     assert c2 == pytest.approx(n * 0.5 * RANK_SCALE_PX ** 2 * np.log1p((m2 / RANK_SCALE_PX) ** 2), rel=0.05)
     assert c1 > 10 * max(c0, 1.0) and m1 > 1.0
+
+
+@pytest.mark.parametrize("ridge_m, near", [(40.0, True), (1500.0, False)])
+def test_a_skyline_too_near_for_the_map_is_said(ridge_m, near):
+    """A view of a ridge 40 m away (its near flank, where the DEM's 2 m height error is 3-4 deg)
+    says so in its notes; the same ridge 1.5 km away, where that error is 0.08 deg, does not."""
+    from skyfix.dem import Dem
+    from skyfix.pose import estimate_heading, synthetic_profile
+
+    cell = 10.0
+    n = 401
+    xs = np.arange(n) * cell
+    ys = xs[::-1]
+    cx, cy = xs[n // 2], ys[-1] + 200.0  # the camera 200 m from the south edge, looking north
+    # a ridge running east-west ridge_m north of the camera, 30 m high, 60 m across
+    z = 30.0 * np.exp(-(((ys[:, None] - (cy + ridge_m)) / 30.0) ** 2)) + np.zeros((1, n))
+    dem = Dem.from_array(z, cell)
+    prof = synthetic_profile(dem, cx, cy, 0.0)
+    az = np.arange(prof.elevation_deg.size) * 360.0 / prof.elevation_deg.size
+    q = np.where(np.abs((az + 180) % 360 - 180) <= 25.0, prof.elevation_deg, np.nan)
+    prof = type(prof)(q, np.where(np.isfinite(q), prof.sigma_deg, np.nan), prof.frame, prof.meta)
+    fix = estimate_heading(prof, dem, cx, cy, 0.0, 10.0)
+    said = [s for s in fix.notes if "the skyline in view lies" in s]
+    assert bool(said) == near, fix.notes
+    if near:
+        # the sight line grazes the ridge's near flank, short of its crest
+        assert 20 <= float(said[0].split("lies ")[1].split(" m")[0]) <= ridge_m and "229 m" in said[0]

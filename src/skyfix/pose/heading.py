@@ -17,10 +17,10 @@ from .attitude import fit_attitude
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
                          load_confidence_model, residual_correlation_bins, structureless_cap)
 from .fix import (DETERMINED_SIGMA_DEG, UNKNOWN_HEADING_SIGMA_DEG, HeadingFix, crs_and_lonlat,
-                  prior_disagreement)
+                  near_skyline, prior_disagreement)
 from .forward import body_profile, harmonic_tilt, residual_profile
-from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
-                          image_plane_attitude, view_span_deg)
+from .image_plane import (IMAGE_PLANE_DEM_SIGMA_M, IMAGE_PLANE_MAX_SPAN_DEG,
+                          SOLVES_DISAGREE_CONFIDENCE, image_plane_attitude, view_span_deg)
 from .scoring import profile_arrays
 
 
@@ -187,6 +187,11 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         notes = (*notes, f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
                          "heading lies more than 1 deg from the profile fit's")
     notes = (*notes, *prior_disagreement(pitch, roll, prior_pitch_deg, prior_roll_deg))
+    # the skyline distance of each observed bin, at the azimuth the answer puts it
+    az = (np.flatnonzero(np.isfinite(q)) * 360.0 / n + yaw) % 360.0
+    dists = hb.skyline_distance_m[0][np.rint(az * render_bins / 360.0).astype(int) % render_bins]
+    notes = (*notes, *near_skyline(dists, IMAGE_PLANE_DEM_SIGMA_M if dem_sigma_m is None
+                                   else dem_sigma_m))
     grid = heading_360(yaw)
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     crs, lon, lat = crs_and_lonlat(dem.crs_wkt, x, y)
