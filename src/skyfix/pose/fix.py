@@ -160,4 +160,3 @@ def near_skyline(skyline_distance_m, dem_sigma_m) -> tuple:
             f"{math.degrees(math.atan(dem_sigma_m / max(med, 1e-3))):.1f} deg there, so the "
             f"attitude is only as good as the map so near; a view of a skyline beyond "
             f"{limit:.0f} m, or a finer DEM, holds it better",)
-

@@ -148,8 +148,7 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
     cost at a fixed RANK_SCALE_PX scale) is below RESTART_GAIN times the first one's.
     Levenberg-Marquardt with a numerical Jacobian and Cauchy weights (scale CAUCHY_SCALE x
     1.4826 MAD, at least 1 px): columns on a false fragment, a rock or terrain the map has wrong
-    weigh little. Yaw stays within
-    ``yaw_window_deg`` of ``yaw_center_deg`` when given.
+    weigh little. Yaw stays within ``yaw_window_deg`` of ``yaw_center_deg`` when given.
 
     The sigmas [deg] are the detection noise's (the residuals' spread, inflated for their
     correlation) plus, with ``world_dist_m`` (each bin's skyline distance [m]) and
@@ -202,14 +201,12 @@ def fit_attitude_image(frames, world_el_deg, yaw0_deg, pitch0_deg, roll0_deg, *,
                                           clamp, iterations)
         return th, r, w
 
-    fixed_cost = _rank_cost
-
     th, r, w = solve([yaw0_deg, pitch0_deg, roll0_deg])
-    c0 = fixed_cost(r)
+    c0 = _rank_cost(r)
     best = (c0, th, r, w)
     for st in starts:
         th_s, r_s, w_s = solve(st)
-        c = fixed_cost(r_s)
+        c = _rank_cost(r_s)
         if c < RESTART_GAIN * c0 and c < best[0]:
             best = (c, th_s, r_s, w_s)
     _, th, r, w = best
@@ -315,7 +312,7 @@ def view_span_deg(frames) -> float:
     return float(min(360.0, 360.0 - gaps.max() + max(f.camera.hfov_deg for f in frames)))
 
 
-__all__ = ["IMAGE_PLANE_DEM_SIGMA_M", "attitude_cost", "IMAGE_PLANE_MAX_SPAN_DEG", "MAP_CORRELATION_M",
-           "IMAGE_PLANE_RENDER_BINS", "SOLVES_DISAGREE_CONFIDENCE",
+__all__ = ["IMAGE_PLANE_DEM_SIGMA_M", "IMAGE_PLANE_MAX_SPAN_DEG", "MAP_CORRELATION_M",
+           "IMAGE_PLANE_RENDER_BINS", "SOLVES_DISAGREE_CONFIDENCE", "attitude_cost",
            "FrameRows", "ImageAttitude", "fit_attitude_image", "frames_from_acquisition",
            "image_plane_attitude", "view_span_deg"]
