@@ -516,10 +516,12 @@ def test_prior_area_is_clipped_to_the_dem():
     assert gx.size == 51 * 51
 
 
-@pytest.mark.parametrize("v", ["nan", "inf", "-inf"])
-def test_heading_prior_must_be_finite(dem_file, profile_json, v):
+@pytest.mark.parametrize("v", ["nan", "inf", "-inf", "400", "-361", "1e12"])
+def test_heading_prior_must_be_an_angle(dem_file, profile_json, v):
+    """400 and 1e12 were wrapped into a heading without a word (1e12 gave 280 deg)."""
     assert_clean_error(run("heading", "--profile", profile_json(), "--dem", dem_file, "--x", 500,
-                           "--y", 500, "--heading-prior-deg", v), "--heading-prior-deg must be a finite")
+                           "--y", 500, "--heading-prior-deg", v),
+                       "--heading-prior-deg must be an angle within [-360, 360] deg")
 
 
 @pytest.mark.parametrize("cmd", ["heading", "attitude"])
@@ -579,6 +581,9 @@ def test_heading_json_carries_the_warnings_it_prints(tmp_path, dem_file, profile
         assert r.exit_code == 0, r.output
         (said,) = json.loads(r.stdout)["notes"]
         assert said.startswith("the heading ") and "is on the edge of the window 95 +- 10" in said
+        # in the window's own north: the grid edge is 85 or 105, not a true heading beside it
+        shown = float(said.split()[2])
+        assert "(grid north)" in said and min(abs(shown - 85.0), abs(shown - 105.0)) < 0.1
         assert f"warning: {said}" in r.stderr
         r = run(cmd, *base, 86)  # truth inside the window: nothing to say
         assert r.exit_code == 0 and json.loads(r.stdout)["notes"] == [], r.output

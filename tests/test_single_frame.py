@@ -231,8 +231,9 @@ def test_a_heading_whose_two_solves_disagree_says_so_in_its_notes(dem_path, monk
     assert bool(said) == capped and h.to_dict()["notes"] == list(h.notes)
     if capped:
         assert h.confidence <= SOLVES_DISAGREE_CONFIDENCE
-        assert said == [f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
-                        "heading lies more than 1 deg from the profile fit's"]
+        # said as a bound, not as the reason for a confidence that may lie far below it
+        assert said == ["the image-plane heading lies more than 1 deg from the profile fit's: "
+                        f"confidence at most {SOLVES_DISAGREE_CONFIDENCE}"]
 
 
 def test_a_tilt_given_wrong_is_said_where_the_attitude_leaves_the_prior(dem_path, tmp_path):
@@ -303,3 +304,42 @@ def test_a_skyline_too_near_for_the_map_is_said(ridge_m, near):
     if near:
         # the sight line grazes the ridge's near flank, short of its crest
         assert 20 <= float(said[0].split("lies ")[1].split(" m")[0]) <= ridge_m and "229 m" in said[0]
+
+
+def test_a_tilt_the_view_cannot_see_has_a_bounded_sigma(dem_path):
+    """Eight bins of skyline cannot separate pitch from the rest: its sigma came out in the
+    hundreds of degrees on such views (290 and 765 on a corner of slope). It stays within the
+    uniform spread over the fits' +-30 deg bound."""
+    from skyfix.pose import estimate_heading, synthetic_profile
+    from skyfix.pose.fix import UNKNOWN_TILT_SIGMA_DEG
+
+    dem = load_dem(dem_path)
+    x0, y0, x1, y1 = dem.bounds
+    x, y = (x0 + x1) / 2, (y0 + y1) / 2
+    prof = synthetic_profile(dem, x, y, 40.0, noise_deg=0.05, rng=3)
+    q = prof.elevation_deg.copy()
+    q[8:] = np.nan
+    prof = type(prof)(q, np.where(np.isfinite(q), prof.sigma_deg, np.nan), prof.frame, prof.meta)
+    fix = estimate_heading(prof, dem, x, y, 40.0, 10.0)
+    assert fix.pitch_sigma_deg == pytest.approx(UNKNOWN_TILT_SIGMA_DEG)  # capped, not 17.3 by chance
+    assert fix.roll_sigma_deg <= UNKNOWN_TILT_SIGMA_DEG and not fix.determined["pitch"]
+
+
+def test_no_angle_is_determined_at_a_heading_likely_wrong(dem_path, monkeypatch):
+    """A roll with a small sigma was marked determined at a heading 8.5 deg off (confidence
+    0.02): fitted in the wrong basin, it was 8.3 deg off. Below DETERMINED_MIN_CONFIDENCE nothing
+    counts as determined, whatever the sigmas."""
+    import skyfix.pose.heading as ph
+    from skyfix.pose import estimate_heading, synthetic_profile
+    from skyfix.pose.fix import DETERMINED_MIN_CONFIDENCE
+
+    dem = load_dem(dem_path)
+    x0, y0, x1, y1 = dem.bounds
+    x, y = (x0 + x1) / 2, (y0 + y1) / 2
+    prof = synthetic_profile(dem, x, y, 40.0, noise_deg=0.05, rng=3)
+    sure = estimate_heading(prof, dem, x, y, 40.0, 10.0)
+    assert sure.confidence >= DETERMINED_MIN_CONFIDENCE and all(sure.determined.values())
+    monkeypatch.setattr(ph, "confidence_from_features", lambda *a, **k: 0.2)
+    unsure = estimate_heading(prof, dem, x, y, 40.0, 10.0)
+    assert unsure.confidence < DETERMINED_MIN_CONFIDENCE and not any(unsure.determined.values())
+    assert unsure.roll_sigma_deg == pytest.approx(sure.roll_sigma_deg, rel=0.5)  # sigmas alike

@@ -47,7 +47,7 @@ from .options import (camera_height, check_point_options, dem_sigma, detector_op
                    "[default: 2].")
 @detector_option
 @click.option("-o", "--out", "--output", "out", type=click.Path(dir_okay=False),
-              help="Heading JSON (default stdout).")
+              help="The result's JSON (default stdout).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg, prior_north,
             window_deg, camera_height_m, position_sigma_m, dem_sigma_m, detector, out, overwrite):
@@ -68,14 +68,17 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     # was none (the whole circle replaced them)
     if not (math.isfinite(window_deg) and 0 < window_deg <= 180):
         raise ParameterError(f"--window-deg must be within (0, 180] deg, got {window_deg}")
+    prior_given = heading_prior_deg
     if heading_prior_deg is None:  # no prior: the whole circle
         if given("window_deg"):
             raise ParameterError("--window-deg needs --heading-prior-deg: without a prior the "
                                  "whole circle is searched (give a prior, or drop --window-deg)")
         heading_prior_deg, window_deg = 0.0, 180.0
     check_point_options(x, y, lon, lat)
-    if not math.isfinite(heading_prior_deg):
-        raise ParameterError(f"--heading-prior-deg must be a finite number, got {heading_prior_deg}")
+    if not (math.isfinite(heading_prior_deg) and -360.0 <= heading_prior_deg <= 360.0):
+        # 1e12 was wrapped into a heading without a word
+        raise ParameterError(f"--heading-prior-deg must be an angle within [-360, 360] deg, "
+                             f"clockwise from north, got {heading_prior_deg:g}")
     if position_sigma_m is None:
         from ..pose.heading import HEADING_POSITION_SIGMA_M as position_sigma_m
     if not (math.isfinite(position_sigma_m) and position_sigma_m >= 0):
@@ -112,7 +115,9 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
                           dem_sigma_m=dem_sigma_m, position_sigma_m=position_sigma_m,
                           notes=tuple(notes))
     if window_deg < 180 and at_window_edge(hf.grid_heading_deg, grid_prior, window_deg):
-        warn(f"the heading {hf.heading_deg:.1f} deg is on the edge of the window "
+        # in the prior's own north: a true heading beside a grid window seemed to lie outside it
+        shown = hf.heading_deg if prior_north == "true" else hf.grid_heading_deg
+        warn(f"the heading {shown:.1f} deg ({prior_north} north) is on the edge of the window "
              f"{heading_prior_deg:g} +- {window_deg:g} deg: the best match lies outside it "
              "(confidence capped); check the prior or widen --window-deg")
         hf = replace(hf, notes=(*hf.notes, notes[-1]))
@@ -121,7 +126,7 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
     d = hf.to_dict()
     d["provenance"] = provenance(
         acq_dir=acq_dir, profile_path=profile_path, dem=dem, dem_path=dem_path, profile=prof,
-        options={"heading_prior_deg": heading_prior_deg, "prior_north": prior_north,
+        options={"heading_prior_deg": prior_given, "prior_north": prior_north,
                  "window_deg": window_deg, "camera_height_m": h, "dem_sigma_m": dem_sigma_m,
                  "position_sigma_m": position_sigma_m,
                  "detector": detector_used(profile_path, detector)},

@@ -76,7 +76,9 @@ class HeadingFix:
     lat: float = float("nan")
     pitch_sigma_deg: float = float("nan")
     roll_sigma_deg: float = float("nan")
-    #: which of heading, pitch and roll the view pins down: 1-sigma within DETERMINED_SIGMA_DEG
+    #: which of heading, pitch and roll the view pins down: 1-sigma within DETERMINED_SIGMA_DEG,
+    #: and the answer at least DETERMINED_MIN_CONFIDENCE likely right (a pitch and roll fitted
+    #: at a heading in the wrong basin have small sigmas and are wrong all the same)
     determined: dict = field(default_factory=dict)
     features: dict = field(default_factory=dict, compare=False)
     notes: tuple = ()
@@ -90,6 +92,11 @@ class HeadingFix:
 
 #: [deg] the largest 1-sigma at which an angle counts as determined by the view
 DETERMINED_SIGMA_DEG = 0.5
+#: the least confidence at which any angle counts as determined
+DETERMINED_MIN_CONFIDENCE = 0.5
+#: [deg] the 1-sigma of a pitch or roll known not at all: uniform over the fits' +-30 deg bound;
+#: no reported pitch or roll sigma exceeds it (a view that cannot see the tilt gave 290-900)
+UNKNOWN_TILT_SIGMA_DEG = 60.0 / math.sqrt(12.0)
 #: [deg] the 1-sigma of a heading known not at all (uniform on the circle: 360 / sqrt(12)); no
 #: reported heading sigma exceeds it
 UNKNOWN_HEADING_SIGMA_DEG = 360.0 / math.sqrt(12.0)

@@ -16,8 +16,9 @@ from ..north import heading_360, meridian_convergence_deg, true_heading_deg, wra
 from .attitude import fit_attitude
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
                          load_confidence_model, residual_correlation_bins, structureless_cap)
-from .fix import (DETERMINED_SIGMA_DEG, UNKNOWN_HEADING_SIGMA_DEG, HeadingFix, crs_and_lonlat,
-                  near_skyline, prior_disagreement)
+from .fix import (DETERMINED_MIN_CONFIDENCE, DETERMINED_SIGMA_DEG, UNKNOWN_HEADING_SIGMA_DEG,
+                  UNKNOWN_TILT_SIGMA_DEG, HeadingFix, crs_and_lonlat, near_skyline,
+                  prior_disagreement)
 from .forward import body_profile, harmonic_tilt, residual_profile
 from .image_plane import (IMAGE_PLANE_DEM_SIGMA_M, IMAGE_PLANE_MAX_SPAN_DEG,
                           SOLVES_DISAGREE_CONFIDENCE, image_plane_attitude, view_span_deg)
@@ -184,8 +185,8 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         # the two solves found different basins: the confidence is the profile fit's, about
         # another answer
         conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)
-        notes = (*notes, f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
-                         "heading lies more than 1 deg from the profile fit's")
+        notes = (*notes, f"the image-plane heading lies more than 1 deg from the profile fit's: "
+                         f"confidence at most {SOLVES_DISAGREE_CONFIDENCE}")
     notes = (*notes, *prior_disagreement(pitch, roll, prior_pitch_deg, prior_roll_deg))
     # the skyline distance of each observed bin, at the azimuth the answer puts it
     az = (np.flatnonzero(np.isfinite(q)) * 360.0 / n + yaw) % 360.0
@@ -222,7 +223,9 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
               ", ".join(f"{k} {v:.3g}" for k, v in feat.items()))
     log.info("heading %.2f deg (grid) +- %.2f, confidence %.2f (%.2f s in all)", grid, hsig, conf,
              time.perf_counter() - t0)
-    determined = {k: bool(math.isfinite(v) and v <= DETERMINED_SIGMA_DEG)
+    psig, rsig = min(psig, UNKNOWN_TILT_SIGMA_DEG), min(rsig, UNKNOWN_TILT_SIGMA_DEG)
+    determined = {k: bool(math.isfinite(v) and v <= DETERMINED_SIGMA_DEG
+                          and conf >= DETERMINED_MIN_CONFIDENCE)
                   for k, v in (("heading", hsig), ("pitch", psig), ("roll", rsig))}
     return HeadingFix(true_heading_deg(grid, conv), hsig, pitch, roll,
                       conf, att.rms_deg ** 2, float(x), float(y), grid_heading_deg=grid,

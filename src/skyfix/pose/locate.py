@@ -372,8 +372,8 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
                      img.roll_deg)
             if abs(wrap_deg(img.yaw_deg - heading)) > 1.0:
                 conf = min(conf, SOLVES_DISAGREE_CONFIDENCE)
-                notes.append(f"confidence capped at {SOLVES_DISAGREE_CONFIDENCE}: the image-plane "
-                             "heading lies more than 1 deg from the profile fit's")
+                notes.append("the image-plane heading lies more than 1 deg from the profile fit's: "
+                             f"confidence at most {SOLVES_DISAGREE_CONFIDENCE}")
             heading, pitch, roll = img.yaw_deg, img.pitch_deg, img.roll_deg
             hsig = max(hsig, img.yaw_sigma_deg)
     log.info("fix (%.1f, %.1f), grid heading %.2f, pitch %.2f, roll %.2f deg; clipped cost %.4f "
