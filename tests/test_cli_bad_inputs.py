@@ -535,6 +535,13 @@ def test_window_must_be_within_half_a_turn_with_a_prior_or_without(dem_file, pro
 
 
 @pytest.mark.parametrize("cmd", ["heading", "attitude"])
+def test_a_north_without_a_prior_is_refused(dem_file, profile_json, cmd):
+    """``--prior-north grid`` with no prior was taken without a word, as a window was."""
+    assert_clean_error(run(cmd, "--profile", profile_json(), "--dem", dem_file, "--x", 500, "--y",
+                           500, "--prior-north", "grid"), "--prior-north needs --heading-prior-deg")
+
+
+@pytest.mark.parametrize("cmd", ["heading", "attitude"])
 def test_a_window_without_a_prior_is_refused(dem_file, profile_json, cmd, tmp_path):
     """The window is about the prior: without one the whole circle is searched and a window
     given was dropped without a word. Refused before any output is written."""

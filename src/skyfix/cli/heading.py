@@ -73,6 +73,10 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
         if given("window_deg"):
             raise ParameterError("--window-deg needs --heading-prior-deg: without a prior the "
                                  "whole circle is searched (give a prior, or drop --window-deg)")
+        if given("prior_north"):  # was taken without a word: it says which north a prior is from
+            raise ParameterError("--prior-north needs --heading-prior-deg: it says which north "
+                                 "the prior is measured from (give a prior, or drop "
+                                 "--prior-north)")
         heading_prior_deg, window_deg = 0.0, 180.0
     check_point_options(x, y, lon, lat)
     if not (math.isfinite(heading_prior_deg) and -360.0 <= heading_prior_deg <= 360.0):
