@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import math
+import shlex
 from functools import cached_property
 from pathlib import Path
 
@@ -170,7 +171,7 @@ class Dem:
         if y0 is None:
             y0 = (z.shape[0] - 1) * spacing_m
         c = CRS.from_user_input(crs) if crs is not None else local_tm_crs("EPSG:4326", -117.0, 0.0)
-        return cls(z, x0, y0, spacing_m, spacing_m, c.to_wkt(), _crs_name(c), body=planet_from_crs(c))
+        return cls(z, x0, y0, spacing_m, spacing_m, c.to_wkt(), crs_label(c), body=planet_from_crs(c))
 
 
 def build_max_pyramid(z: np.ndarray) -> list[np.ndarray]:
@@ -186,10 +187,6 @@ def build_max_pyramid(z: np.ndarray) -> list[np.ndarray]:
         levels.append(np.maximum(np.maximum(pad[0::2, 0::2], pad[0::2, 1::2]),
                                  np.maximum(pad[1::2, 0::2], pad[1::2, 1::2])))
     return levels
-
-
-def _crs_name(crs) -> str:
-    return crs_label(crs)
 
 
 def file_checksum(path, chunk: int = 1 << 20) -> str:
@@ -310,7 +307,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                     w, s, e, n = geographic_bounds(src_crs, bounds)
                     dst_crs = local_tm_crs(src_crs, (w + e) / 2, (s + n) / 2)
                     log.info("%s: %s stretches distances by up to %.2f %% over the DEM: "
-                             "reprojected to %s", path.name, _crs_name(src_crs) or src_crs.name,
+                             "reprojected to %s", path.name, crs_label(src_crs),
                              100 * err, dst_crs.name)
                 else:
                     # Not kept: a 1 % stretch bends horizons, and a CRS that is not conformal
@@ -321,10 +318,10 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                     turn = direction_error_deg(src_crs, bounds)
                     log.warning("%s: %s stretches distances by up to %.2f %% over the DEM (more than "
                                 "%.1f %%)%s: reprojected to %s, in which coordinates are given",
-                                path.name, _crs_name(src_crs) or src_crs.name, 100 * err,
+                                path.name, crs_label(src_crs), 100 * err,
                                 100 * MAX_SCALE_ERROR,
                                 f" and turns directions by up to {turn:.2f} deg" if turn >= 0.01
-                                else "", _crs_name(dst_crs) or dst_crs.name)
+                                else "", crs_label(dst_crs))
                     advise = True
         if not dst_crs.is_projected or abs(dst_crs.axis_info[0].unit_conversion_factor - 1.0) > 1e-9:
             # only a CRS asked for can be so: skyfix's own choices are metric
@@ -336,7 +333,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
             with reprojection_errors(path.name, src_crs, dst_crs, chosen=crs is not None):
                 z, transform, outside = _reproject(z, transform, src_crs, bounds, dst_crs,
                                                    resolution_m, path.name, check_spread=crs is None)
-            log.info("reprojected %s from %s to %s", path.name, _crs_name(src_crs), _crs_name(dst_crs))
+            log.info("reprojected %s from %s to %s", path.name, crs_label(src_crs), crs_label(dst_crs))
             if advise and zfactor == 1.0:  # (gdalwarp would keep heights in feet: no advice)
                 # the very grid read here, its wedges no-data (not 0, gdalwarp's default fill for a
                 # source without nodata); read back, they are no terrain again (:func:`~skyfix.voids.collar_cells`)
@@ -345,14 +342,14 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                 log.warning("%s: to read this grid without reprojecting it each time, write it once: "
                             "gdalwarp -t_srs %s -te %.3f %.3f %.3f %.3f -tr %.6f %.6f -r bilinear "
                             "-ot Float32 -dstnodata -99999 %s OUT.tif", path.name,
-                            _crs_name(dst_crs) or "'" + dst_crs.to_proj4() + "'",
+                            shlex.quote(crs_label(dst_crs)),
                             xmin, ymin, xmax, ymax, transform.a, -transform.e, path.name)
         else:
             outside = None
     voids = fill_voids(z, fill_max_cells, outside)
     dx, dy = transform.a, -transform.e
     dem = Dem(z, transform.c + dx / 2, transform.f - dy / 2, dx, dy, dst_crs.to_wkt(),
-              _crs_name(dst_crs), source=str(path), checksum=file_checksum(path), voids=voids,
+              crs_label(dst_crs), source=str(path), checksum=file_checksum(path), voids=voids,
               body=body)
     xmin, ymin, xmax, ymax = dem.bounds
     dem.scale_error = scale_error(dst_crs, (xmin, ymin, xmax, ymax))
@@ -387,7 +384,7 @@ def _reproject(z, transform, src_crs, bounds, dst_crs, resolution_m, name, *, ch
             # no one metric CRS holds a continent: every horizon would be stretched
             raise DemError(
                 f"{name} spans too much of its body for one metric CRS: in "
-                f"{_crs_name(dst_crs) or dst_crs.name} distances stretch "
+                f"{crs_label(dst_crs)} distances stretch "
                 + (f"by up to {100 * spread:.0f} %" if math.isfinite(spread) else
                    "without bound") + " over it; clip it to the area you need (e.g. "
                 "gdalwarp -te XMIN YMIN XMAX YMAX, a few hundred km at most)")
