@@ -16,16 +16,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from conftest import plane_dem, shared_dem_path
-from skyfix.cli.main import cli
+from conftest import cli_run as run, plane_dem, shared_dem_path
 from skyfix.errors import SkyfixError
 from skyfix.formats import Profile, Skyline, load_acquisition, read_profile_json, read_skyline_json
-
-
-def run(*args):
-    return CliRunner().invoke(cli, [str(a) for a in args])
 
 
 def assert_clean_error(result, *needles):

@@ -8,14 +8,8 @@ import sys
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from conftest import plane_dem, shared_dem_path
-from skyfix.cli.main import cli
-
-
-def run(*args):
-    return CliRunner().invoke(cli, [str(a) for a in args])
+from conftest import cli_run as run, plane_dem, shared_dem_path
 
 
 def assert_clean_error(result, needle):

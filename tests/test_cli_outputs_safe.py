@@ -14,18 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from skyfix.cli.main import cli
+from conftest import cli_run as run
 from skyfix.dem import Dem, write_dem
 
 
 class Reached(Exception):
     """The run got past its checks to the stage a test stubbed out."""
-
-
-def run(*args):
-    return CliRunner().invoke(cli, [str(a) for a in args])
 
 
 def hill_dem() -> Dem:

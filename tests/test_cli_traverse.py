@@ -5,14 +5,8 @@ import json
 import math
 
 import pytest
-from click.testing import CliRunner
 
-from conftest import shared_dem_path
-from skyfix.cli.main import cli
-
-
-def run(*args):
-    return CliRunner().invoke(cli, [str(a) for a in args])
+from conftest import cli_run as run, shared_dem_path
 
 
 @pytest.fixture(scope="module")

@@ -6,14 +6,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from conftest import plane_dem
+from conftest import cli_run as run, plane_dem
 from skyfix.cli.main import cli
 from skyfix.errors import ParameterError
 from skyfix.evaluate import EvalConfig
-
-
-def run(*args):
-    return CliRunner().invoke(cli, [str(a) for a in args])
 
 
 def test_config_refuses_unknown_sets_and_scenarios():

@@ -6,19 +6,13 @@ import json
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from conftest import shared_dem_path
-from skyfix.cli.main import cli
+from conftest import cli_run as run, shared_dem_path
 from skyfix.dem import load_dem
 from skyfix.formats import Truth
 from skyfix.simulate import simulate_acquisition
 
 X, Y = 601500.0, 6743500.0  # glacier DEM, a valley with ridges around
-
-
-def run(*args):
-    return CliRunner().invoke(cli, [str(a) for a in args])
 
 
 @pytest.fixture(scope="module")
