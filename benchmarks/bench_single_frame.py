@@ -180,6 +180,16 @@ def main(argv=None):
             z = err[ok] / sig
             cover.append(f"{name} {np.mean(z <= 1):.0%} / {np.mean(z <= 2):.0%}")
         print("the error within 1 / 2 of the reported sigmas: " + ", ".join(cover))
+        # the frames beyond a bar are where a sigma that knows only its own basin fails
+        cover = []
+        for name, err, key, bar in (("heading", he, "hsig", 1.0), ("pitch", pe, "psig", 0.5),
+                                    ("roll", re_, "rsig", 0.5)):
+            sig = np.array([r.get(key, np.nan) for r in rows])
+            miss = ok & (err > bar)
+            z = err[miss] / sig[miss]
+            cover.append(f"{name} {np.mean(z <= 1):.0%} / {np.mean(z <= 2):.0%} of {int(miss.sum())}"
+                         if miss.any() else f"{name}: none beyond")
+        print("  of the errors beyond the bar: " + ", ".join(cover))
     near_m = args.map_sigma_m / np.tan(np.radians(0.5))
     served = [r for r in rows if r["sky_share"] >= 1 / 3 and r["sky_m"] >= near_m]
     if args.diagnose:

@@ -3,6 +3,7 @@
 the DEM, and a frame with no skyline refused."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -336,4 +337,32 @@ def test_no_angle_is_determined_at_a_heading_likely_wrong(dem_path, monkeypatch)
     monkeypatch.setattr(ph, "confidence_from_features", lambda *a, **k: 0.2)
     unsure = estimate_heading(prof, dem, x, y, 40.0, 10.0)
     assert unsure.confidence < DETERMINED_MIN_CONFIDENCE and not any(unsure.determined.values())
-    assert unsure.roll_sigma_deg == pytest.approx(sure.roll_sigma_deg, rel=0.5)  # sigmas alike
+    # Its sigmas now say so too: with the basin's own sigmas of hundredths of a degree and the
+    # answer on the priors, the 68 % half-width is where 0.2 + 0.8 r / w reaches erf(1/sqrt 2),
+    # w the window (10 deg of heading; the inclinometer prior's 10 deg of tilt).
+    assert max(sure.roll_sigma_deg, sure.heading_sigma_deg) < 0.5
+    r = (math.erf(1 / math.sqrt(2)) - 0.2) / 0.8 * 10.0
+    assert unsure.heading_sigma_deg == pytest.approx(r, abs=0.1)
+    assert unsure.roll_sigma_deg == pytest.approx(r, abs=0.1)
+    assert any("another basin" in n for n in unsure.notes)
+    # the basin's own stays at hand for a filter that settles the basin by its track
+    assert unsure.features["heading_sigma_basin_deg"] < 0.5
+    assert not any("another basin" in n for n in sure.notes)
+
+
+def test_wrong_basin_sigma_holds_the_error_as_often_as_a_sigma_claims():
+    """Against a direct draw of the mixture it describes: right (normal, sigma) with probability
+    c, else uniform over the window about the prior."""
+    from skyfix.pose.confidence import wrong_basin_sigma
+
+    rng = np.random.default_rng(0)
+    for sigma, c, w, off in ((0.4, 0.9, 10.0, 2.0), (1.37, 0.55, 10.0, 5.0), (0.8, 0.3, 180.0, 0.0),
+                             (0.2, 0.7, 10.0, 9.5)):
+        n = 400_000
+        right = rng.random(n) < c
+        truth_wrong = rng.uniform(-w, w, n) if w < 180 else rng.uniform(-180, 180, n)
+        err = np.where(right, rng.normal(0, sigma, n), _angle(truth_wrong - off))
+        s = wrong_basin_sigma(sigma, c, w, off)
+        assert np.mean(np.abs(err) <= s) == pytest.approx(math.erf(1 / math.sqrt(2)), abs=0.003)
+    assert wrong_basin_sigma(0.3, 1.0, 10.0, 4.0) == pytest.approx(0.3)
+    assert wrong_basin_sigma(0.3, 0.0, 10.0, 0.0) == pytest.approx(10.0 * math.erf(1 / math.sqrt(2)))

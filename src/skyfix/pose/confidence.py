@@ -102,6 +102,45 @@ def calibrated_sigma(raw_sigma: float, feat: dict, model: dict | None = None,
     return float(max(raw_sigma, s)) if math.isfinite(raw_sigma) else float(raw_sigma)
 
 
+#: the share of a normal error within its 1-sigma: what a reported 1-sigma claims
+ONE_SIGMA_SHARE = math.erf(1.0 / math.sqrt(2.0))
+
+
+def wrong_basin_sigma(sigma: float, confidence: float, half_width: float,
+                      offset: float = 0.0) -> float:
+    """The 1-sigma [deg] of an angle that is, with probability ``confidence``, in its right basin
+    with a normal error of ``sigma`` [deg], and otherwise anywhere in the prior's window
+    ``+-half_width`` [deg] (uniform; the answer ``offset`` [deg] from the prior; 180 or more:
+    anywhere on the circle): the half-width that holds the error with the probability a normal
+    1-sigma holds it (:data:`ONE_SIGMA_SHARE`, 68.3 %).
+
+    A fit's own sigma knows its basin only: a heading 7.3 deg off in a rival basin came with 1.37
+    deg at confidence 0.55. The confidence says how likely the basin is; this puts the two
+    together so that the sigma covers the error as often as it claims whenever the confidence is
+    calibrated. Equal to ``sigma`` at confidence 1 and hardly wider above about 0.9 (1.06x at
+    0.95); at confidence 0 the window's own spread (0.683 ``half_width`` about the prior)."""
+    if not (math.isfinite(sigma) and sigma >= 0.0):
+        return float(sigma)
+    c = min(max(float(confidence), 0.0), 1.0) if math.isfinite(confidence) else 0.0
+    w = float(half_width)
+    d = abs(float(offset))
+
+    def wrong(r):  # P(|error| <= r) when the truth is uniform over the window
+        if w >= 180.0:
+            return min(2.0 * r, 360.0) / 360.0
+        return max(0.0, min(d + r, w) - max(d - r, -w)) / (2.0 * w)
+
+    def share(r):
+        right = math.erf(r / (sigma * math.sqrt(2.0))) if sigma > 0 else 1.0
+        return c * right + (1.0 - c) * wrong(r)
+
+    lo, hi = 0.0, sigma * 10.0 + w + d + 360.0
+    for _ in range(100):  # share() rises with r: bisection to well below 1e-9 deg
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if share(mid) < ONE_SIGMA_SHARE else (lo, mid)
+    return float(max(hi, sigma))
+
+
 def structureless_cap(conf: float, relief_deg: float, noise_deg: float) -> float:
     """At most 0.05 when the query's relief (std [deg]) is within twice its noise [deg]: such a
     horizon fits anywhere, and no calibration case is that flat, so the fitted model would be

@@ -48,7 +48,11 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
                               camera_height_m=acq.camera_height_m, prior_pitch_deg=acq.prior_pitch_deg,
                               prior_roll_deg=acq.prior_roll_deg, position_sigma_m=ps,
                               dem_sigma_m=cfg.map_sigma_m)
-        return Measurement(hf.grid_heading_deg, hf.heading_sigma_deg, hf.confidence)
+        # the basin's own sigma: the track, not a sigma widened by the confidence, tells a
+        # doubtful heading right or wrong (run.py's corroboration and innovation gate)
+        return Measurement(hf.grid_heading_deg,
+                           hf.features.get("heading_sigma_basin_deg", hf.heading_sigma_deg),
+                           hf.confidence)
 
     def fix(k, x, y, radius_m):
         prof, acq = profile(k)
