@@ -172,7 +172,7 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
         or ``sweep`` (:func:`skyfix.sweep.render_grid` over groups of up to :data:`SWEEP_GROUP`
         x :data:`SWEEP_GROUP` blocks, smaller where that leaves the workers too few tasks, one
         task each: 1.7-2.5x faster, 2-2.5x less CPU from 2 x 2 km up, its skylines never above the
-        kernel's and below them by more than 0.01 deg in about 0.01-0.1 % of bins; one DEM, rays
+        kernel's and below them by more than 0.01 deg in at most 0.05 % of bins; one DEM, rays
         to its edge). A build parameter: a resume keeps it
     """
     from ..stack import load_dems
