@@ -2,8 +2,8 @@
 input checks on scripted measurements."""
 
 import json
-import re
 import math
+import re
 
 import numpy as np
 import pytest
@@ -352,3 +352,23 @@ def test_check_stops_names_a_broken_stop_and_check_start_a_start_off_the_dem(tmp
     trav.start = Start(5000.0, 500.0, 0.0, 1.0, 1.0)
     with pytest.raises(OutsideDemError, match="the traverse's start .* is outside the DEM.*check 'start'"):
         check_start(trav, dem)
+
+
+def test_position_sigmas_in_and_out_are_radial_as_a_fixs():
+    """A fix's position_sigma_m is radial (the root of its covariance's trace): fed to the
+    filter it is half its square an axis, and the filter's own is radial again. It was read as
+    each axis's, so a fix weighed half what it should, and the track's sigma was its worst
+    axis's, which holds 39 % of 2-D errors where 63 % are claimed."""
+    from skyfix.traverse.ekf import PoseFilter
+
+    f = PoseFilter(0.0, 0.0, 0.0, np.diag([1e8, 1e8, 1e4]))
+    f.update_pose(3.0, 4.0, 10.0, 2.0, 1.0, gate=False)
+    assert f.position_sigma_m == pytest.approx(2.0, rel=1e-6)
+    assert f.position_axis_sigma_m == pytest.approx(2.0 / math.sqrt(2.0), rel=1e-6)
+    # two independent fixes of radial sigma 2 m: 2 / sqrt(2) radial
+    f.update_pose(3.0, 4.0, 10.0, 2.0, 1.0, gate=False)
+    assert f.position_sigma_m == pytest.approx(math.sqrt(2.0), rel=1e-6)
+    # a circular normal of radial sigma s holds 1 - exp(-1) = 63 % of errors within s
+    rng = np.random.default_rng(1)
+    err = rng.multivariate_normal([0, 0], f.cov[:2, :2], 200_000)
+    assert np.mean(np.hypot(*err.T) <= f.position_sigma_m) == pytest.approx(1 - math.exp(-1), abs=0.005)

@@ -72,7 +72,14 @@ class PoseFilter:
 
     @property
     def position_sigma_m(self) -> float:
-        """1-sigma radius [m]: the root of the larger eigenvalue of the position covariance."""
+        """Radial 1-sigma [m]: the root of the position covariance's trace, as a fix's
+        ``position_sigma_m`` (about 63 % of errors within it when both axes are alike)."""
+        return float(math.sqrt(max(self.cov[0, 0] + self.cov[1, 1], 0.0)))
+
+    @property
+    def position_axis_sigma_m(self) -> float:
+        """1-sigma [m] along the worst axis: the root of the larger eigenvalue of the position
+        covariance (how far the position may be off in any one direction)."""
         return float(math.sqrt(max(np.linalg.eigvalsh(self.cov[:2, :2]).max(), 0.0)))
 
     @property
@@ -119,8 +126,10 @@ class PoseFilter:
     def update_pose(self, x, y, heading_deg, position_sigma_m, heading_sigma_deg, *,
                     gate=True, chi2=None) -> Update:
         """A position and heading fix [m, m, deg from grid north] with 1-sigmas [m, deg]
-        (the position sigma a radius, the same on both axes); ``chi2`` as for a heading."""
+        (the position sigma radial, as a fix reports it: the root of its covariance's trace,
+        half of it on each axis); ``chi2`` as for a heading."""
         innov = np.array([float(x) - self.state[0], float(y) - self.state[1],
                           float(wrap_deg(heading_deg - self.state[2]))])
-        r_mat = np.diag([position_sigma_m ** 2, position_sigma_m ** 2, heading_sigma_deg ** 2])
+        axis = position_sigma_m ** 2 / 2.0
+        r_mat = np.diag([axis, axis, heading_sigma_deg ** 2])
         return self._update(np.eye(3), innov, r_mat, gate, chi2)

@@ -69,8 +69,9 @@ class TraverseConfig:
         fix 1 m off that the odometry's prediction agrees with is worth taking, with its sigma)
     max_rejections : stops in a row without an accepted update before the operator is asked
     heading_window_deg : [deg] the smallest half-window of a heading search
-    max_position_sigma_m : [m] a position fix is due once the 1-sigma position exceeds it (the
-        heading at a wrong position is wrong by about sigma / skyline distance)
+    max_position_sigma_m : [m] a position fix is due once the position's 1-sigma along its
+        worst axis exceeds it (the heading at a wrong position is wrong by about sigma / skyline
+        distance)
     min_fix_radius_m, max_fix_radius_m : [m] bounds of the position fix's search disc (3 sigma)
     position_sigma_floor_m, heading_sigma_floor_deg : [m], [deg] the least sigma a skyline
         measurement is given (skyfix's sigma is the fit's; the map's own errors come on top)
@@ -120,25 +121,25 @@ def _fix_due(driven_m, leg_m, filt, cfg, owed, last) -> bool:
     # own few per cent (else a 1000 m leg measured as 998 m waits one more stop); the traverse's
     # last stop ends the last leg
     return (owed or last or driven_m >= 0.97 * leg_m
-            or filt.position_sigma_m > cfg.max_position_sigma_m)
+            or filt.position_axis_sigma_m > cfg.max_position_sigma_m)
 
 
 def _attempt_heading(measure, k, filt, cfg):
     window = max(cfg.heading_window_deg, 3.0 * filt.heading_sigma_deg)
     m = measure.heading(k, filt.state[0], filt.state[1], filt.state[2], min(window, 180.0),
-                        filt.position_sigma_m)
+                        filt.position_axis_sigma_m)
     retried = False
     if m.confidence < cfg.min_confidence and window < 180.0:
         retried = True  # the truth may lie outside the window, or the view was poor
         m2 = measure.heading(k, filt.state[0], filt.state[1], filt.state[2], min(2 * window, 180.0),
-                             filt.position_sigma_m)
+                             filt.position_axis_sigma_m)
         if m2.confidence > m.confidence:
             m = m2
     return m, retried
 
 
 def _attempt_fix(measure, k, filt, cfg):
-    r = float(np.clip(3.0 * filt.position_sigma_m, cfg.min_fix_radius_m, cfg.max_fix_radius_m))
+    r = float(np.clip(3.0 * filt.position_axis_sigma_m, cfg.min_fix_radius_m, cfg.max_fix_radius_m))
     m = measure.fix(k, filt.state[0], filt.state[1], r)
     retried = False
     if m.confidence < cfg.min_confidence and r < cfg.max_fix_radius_m:
@@ -181,7 +182,7 @@ def _heading_sigma(m: Measurement, filt: PoseFilter, cfg) -> float:
     if m.x is None and m.skyline_distance_m:
         # measured at the predicted position by a measure that did not allow for its error: a
         # position error p moves the skyline by about p / d rad at distance d
-        s = math.hypot(s, math.degrees(filt.position_sigma_m / m.skyline_distance_m))
+        s = math.hypot(s, math.degrees(filt.position_axis_sigma_m / m.skyline_distance_m))
     return s
 
 
@@ -329,7 +330,8 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
             s = trav.start
             if s is not None:
                 h = grid_heading_from_true(s.heading_deg, convergence(s.x, s.y))
-                filt = PoseFilter(s.x, s.y, h, np.diag([s.position_sigma_m ** 2] * 2
+                # the start's position sigma is radial, as a fix's: half its square an axis
+                filt = PoseFilter(s.x, s.y, h, np.diag([s.position_sigma_m ** 2 / 2.0] * 2
                                                          + [s.heading_sigma_deg ** 2]))
         else:
             filt.predict(trav.odometry[k - 1])
@@ -347,7 +349,7 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
                     raise SkyfixError(f"the first stop's fix has confidence {measured.confidence:.2f}: "
                                       "no start to go on from")
                 filt = PoseFilter(measured.x, measured.y, measured.heading_deg, np.diag(
-                    [max(measured.position_sigma_m, config.position_sigma_floor_m) ** 2] * 2
+                    [max(measured.position_sigma_m, config.position_sigma_floor_m) ** 2 / 2.0] * 2
                     + [max(measured.heading_sigma_deg, config.heading_sigma_floor_deg) ** 2]))
                 update, conf = "position", measured.confidence
             else:

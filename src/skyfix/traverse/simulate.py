@@ -129,7 +129,7 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
                       afresh="pass --overwrite to start afresh") -> Path:
     """Write a traverse folder ``out`` (``docs/conventions.md``, "Traverse"): ``stop_NNN/``
     acquisitions, ``odometry.jsonl``, ``traverse.json`` (the start: the truth on the map blurred by
-    ``start_sigmas`` = (position [m], heading [deg]) 1-sigma), ``truth.jsonl``.
+    ``start_sigmas`` = (position [m], radial; heading [deg]) 1-sigma), ``truth.jsonl``.
 
     Every parameter is checked before ``out`` is touched. ``simulation.json`` records them before
     the first stop is rendered: a rerun with the same ones resumes (a stop already rendered is
@@ -249,8 +249,9 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
     if with_start:
         ps, hsd = start_sigmas
         # a start fix is a fix on the map: where the truth's terrain lies there
-        meta["start"] = {"x": float(plan.x[0] + offset[0] + rng.normal(0, ps)),
-                         "y": float(plan.y[0] + offset[1] + rng.normal(0, ps)),
+        # ps is radial, as every position sigma skyfix reads or writes: ps / sqrt(2) an axis
+        meta["start"] = {"x": float(plan.x[0] + offset[0] + rng.normal(0, ps / math.sqrt(2.0))),
+                         "y": float(plan.y[0] + offset[1] + rng.normal(0, ps / math.sqrt(2.0))),
                          "heading_deg": truth[0]["heading_deg"] + float(rng.normal(0, hsd)),
                          "position_sigma_m": ps, "heading_sigma_deg": hsd}
     from .._io import write_json, write_jsonl
