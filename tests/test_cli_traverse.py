@@ -336,3 +336,32 @@ def test_evaluate_traverse_writes_only_into_an_empty_folder_or_its_own_output(tm
             "--stop-spacing-m", 50, "-o", theirs)
     assert r.exit_code == 2 and "not an earlier `evaluate --scenario traverse` output" in r.output
     assert sorted(p.name for p in theirs.iterdir()) == ["mine.txt"]
+
+
+def test_a_database_that_does_not_reach_the_route_leaves_the_fixes_to_the_dem(simulated, fused,
+                                                                              tmp_path):
+    """A --db built elsewhere gave every fix 'no database position lies inside the prior area:
+    check --prior-x/...' (options traverse does not have) and an operator request at each stop.
+    A prior disc the database does not reach is searched on the DEM, as without --db."""
+    from skyfix.dem import load_dem
+
+    dem, trav = simulated
+    s = json.loads((trav / "traverse.json").read_text())["start"]
+    x0, y0, x1, y1 = load_dem(dem).bounds
+    # a 100 m square in the DEM corner farthest from the start
+    cx = x0 + 200 if s["x"] - x0 > x1 - s["x"] else x1 - 300
+    cy = y0 + 200 if s["y"] - y0 > y1 - s["y"] else y1 - 300
+    assert math.hypot(cx - s["x"], cy - s["y"]) > 1000
+    db = tmp_path / "far.zarr"
+    r = run("build-db", dem, "-o", db, "--bounds", cx, cy, cx + 100, cy + 100, "--spacing-m", 50,
+            "--workers", 0, "--no-progress")
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "out"
+    r = run("traverse", trav, "--dem", dem, "--db", db, "-o", out, "--detector", "dp", "--no-plot")
+    assert r.exit_code == 0, r.output
+    rows = [json.loads(line) for line in (out / "stops.jsonl").read_text().splitlines()]
+    plain = [json.loads(line) for line in (fused[0] / "stops.jsonl").read_text().splitlines()]
+    assert [r_["update"] for r_ in rows] == [r_["update"] for r_ in plain]
+    assert all(r_["operator_request"] is None for r_ in rows)
+    for a, b in zip(rows, plain):  # the same fixes as without the database
+        assert math.hypot(a["x"] - b["x"], a["y"] - b["y"]) < 1e-6

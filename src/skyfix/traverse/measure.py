@@ -4,10 +4,15 @@ detected once and serves the heading search and the position fix alike.
 
 from __future__ import annotations
 
+import logging
+import math
+
 import numpy as np
 
 from ..errors import SkyfixError
 from .run import Measure, Measurement
+
+log = logging.getLogger(__name__)
 
 #: fewest observed azimuth bins a stop's profile must hold to be measured (a heading needs 8)
 MIN_BINS = 8
@@ -59,7 +64,12 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
         if db is None and x is None:
             raise SkyfixError("no start and no database: the first fix needs --db or a start "
                               "in traverse.json")
-        f = locate(prof, db=db, dem=dem, prior_xy=None if x is None else (x, y),
+        # a prior disc the database does not reach is searched on the DEM, as without --db
+        use_db = db if x is None or db is None or db_reaches(db, x, y, radius_m) else None
+        if db is not None and use_db is None:
+            log.info("stop %d: no database position within %.0f m of (%.1f, %.1f): the fix is "
+                     "searched on the DEM", k, radius_m, x, y)
+        f = locate(prof, db=use_db, dem=dem, prior_xy=None if x is None else (x, y),
                    prior_radius_m=radius_m, prior_pitch_deg=acq.prior_pitch_deg,
                    prior_roll_deg=acq.prior_roll_deg, camera_height_m=acq.camera_height_m,
                    config=cfg)
@@ -67,3 +77,16 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
                            f.position_sigma_m)
 
     return Measure(heading, fix)
+
+
+def db_reaches(db, x, y, radius_m) -> bool:
+    """Whether any position of the database's grid lies within ``radius_m`` of (x, y) [m]."""
+    xs, ys = np.asarray(db.x_coords, float), np.asarray(db.y_coords, float)
+    return math.hypot(_nearest(xs, x) - x, _nearest(ys, y) - y) <= radius_m
+
+
+def _nearest(coords, v):
+    """The value of sorted-or-reversed ``coords`` nearest to ``v``."""
+    c = np.sort(coords)
+    i = int(np.clip(np.searchsorted(c, v), 1, c.size - 1)) if c.size > 1 else 0
+    return float(c[i] if c.size == 1 or abs(c[i] - v) < abs(c[i - 1] - v) else c[i - 1])
