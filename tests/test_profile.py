@@ -149,6 +149,27 @@ def test_full_circle_matches_rendered_horizon(scene):
     assert set(counts) == {1, 2}
 
 
+def test_frames_whose_pans_contradict_each_other_are_flagged(scene, caplog):
+    """A frame given the pan of its neighbour (30 deg wrong): the merge's median split the
+    difference (bins off by up to 9 deg on a real acquisition) without a word. Agreeing frames
+    are not flagged."""
+    fine, truth = scene
+    cam = get_camera("navcam")
+    pans = np.arange(10) * 36.0
+    yaw = 37.3
+    sky = draw_skylines(cam, fine, yaw, 0.0, 0.0, pans, 0.0)
+    good = profile_from_skylines(make_acq(cam, pans), sky)
+    assert good.meta["frames_disagree"] == []
+    wrong = pans.copy()
+    wrong[1] = 20.0  # shown 36 deg, said 20: frames 0, 1 and 2 overlap where they should not
+    with caplog.at_level("WARNING"):
+        bad = profile_from_skylines(make_acq(cam, wrong), sky)
+    pairs = {(d["i"], d["j"]) for d in bad.meta["frames_disagree"]}
+    assert (0, 1) in pairs or (1, 2) in pairs
+    assert all(1 in p for p in pairs)
+    assert "disagree by" in caplog.text and "pan_deg" in caplog.text
+
+
 def test_partial_coverage_with_distortion(scene):
     fine, truth = scene
     cam = camera_from_fov(640, 480, 90.0, Distortion(k1=-0.05, k2=0.01))

@@ -20,6 +20,34 @@ log = logging.getLogger(__package__)  # messages name the stage, as before the s
 
 
 
+#: [deg] the median elevation difference over their shared bins beyond which two overlapping
+#: frames are said to disagree: after pan refinement they agree to a pixel or two (0.01-0.1 deg
+#: on simulated navcam frames), and a mast's pans are good to about 1 deg
+DISAGREE_DEG = 1.0
+#: fewest shared bins for two frames' disagreement to be judged
+DISAGREE_MIN_BINS = 3
+
+
+def disagreeing_frames(vals: np.ndarray, frames) -> list[dict]:
+    """Pairs of frames whose samples (``vals``: (bins, F) [deg], NaN where a frame does not
+    cover a bin; ``frames``: each column's frame index) differ by more than
+    :data:`DISAGREE_DEG` in the median over at least :data:`DISAGREE_MIN_BINS` shared bins: a
+    wrong pan or tilt in the acquisition, which the merge's median would otherwise split the
+    difference of without a word."""
+    out = []
+    have = np.isfinite(vals)
+    for a in range(vals.shape[1]):
+        for b in range(a + 1, vals.shape[1]):
+            both = have[:, a] & have[:, b]
+            n = int(both.sum())
+            if n < DISAGREE_MIN_BINS:
+                continue
+            med = float(np.median(np.abs(vals[both, a] - vals[both, b])))
+            if med > DISAGREE_DEG:
+                out.append({"i": int(frames[a]), "j": int(frames[b]), "median_deg": med, "bins": n})
+    return out
+
+
 def profile_from_skylines(acq: Acquisition, skylines: Sequence[Skyline | None], *,
                           azimuth_bins: int = 360, refine: PanRefinement = DEFAULT_REFINEMENT,
                           method: str = "project") -> Profile:
@@ -75,6 +103,11 @@ def profile_from_skylines(acq: Acquisition, skylines: Sequence[Skyline | None], 
         # one pixel at full confidence, more where the detector is unsure
         sigs[:, m] = pix_deg / np.maximum(np.nan_to_num(w), 0.05)
     el, sigma, count = merge_samples(vals, sigs, wts)
+    disagree = disagreeing_frames(vals, used)
+    for d in disagree:
+        log.warning("frames %d and %d disagree by %.1f deg (median over %d shared bins) where they "
+                    "overlap: a wrong pan_deg or tilt_deg in acquisition.json, or a skyline detected "
+                    "wrong in one of them (the merged profile's sigma there says so)", d["i"], d["j"], d["median_deg"], d["bins"])
     contributors = [[used[m] for m in np.flatnonzero(np.isfinite(vals[k]))] for k in range(azimuth_bins)]
     for m, i in enumerate(used):
         records[i].update(pan_deg=float(pans[m] + delta[m]), pan_correction_deg=float(delta[m]),
@@ -92,6 +125,7 @@ def profile_from_skylines(acq: Acquisition, skylines: Sequence[Skyline | None], 
         "frames": records, "frames_used": len(used), "frames_dropped": len(acq.frames) - len(used),
         "pan_refinement": {"enabled": refine.enabled and len(used) > 1, "pairs": pairs},
         "contributors": contributors, "coverage_deg": float(np.isfinite(el).sum() * 360.0 / azimuth_bins),
+        "frames_disagree": disagree,
     }
     return Profile(el, sigma, frame="body", meta=meta)
 
