@@ -438,6 +438,10 @@ def test_verify_sample_catches_a_store_that_disagrees_with_the_dem(dem_path, cle
     rep = verify_database(clean_db, dem=other, samples=8)
     assert not rep.ok and rep.samples == 0 and len(rep.sample_failures) == 1
     assert "not the DEM this database was built from" in rep.sample_failures[0]
+    # and the command's advice is to pass the right DEM, not to rebuild blocks that are intact
+    res = CliRunner().invoke(cli, ["verify", str(clean_db), "--samples", "8", "--dem", str(other)])
+    assert res.exit_code == 2 and "pass --dem the DEM the database was built from" in res.output
+    assert "marker folder" not in res.output and "rebuild" not in res.output
     # The same heights passed as a Dem claiming the build's checksum get past the gate, and the
     # re-render finds skylines that the ridge changed.
     forged = Dem(z, d.x0, d.y0, d.dx, d.dy, d.crs_wkt, checksum=d.checksum)

@@ -43,10 +43,21 @@ def verify(ctx, db, dem, samples, seed):
     for n in r.notes:
         click.echo(f"note     {n}")
     if not r.ok:
+        # advice for what was found, not for every kind of failure
+        todo = []
+        if r.missing or r.corrupt:
+            todo.append("rerun the build-db command to rebuild missing blocks and blocks whose data "
+                        "files are gone; delete a corrupt block's marker folder, "
+                        "_skyfix/blocks/rRRRR_cCCCC, to rebuild it")
+        if r.dem_mismatch:
+            todo.append("pass --dem the DEM the database was built from (`skyfix info DB` names it)"
+                        " to re-render samples")
+        elif r.sample_failures:
+            todo.append("the stored skylines differ from a re-render on this DEM: rebuild the "
+                        "store (build-db --overwrite) if the DEM is the right one")
         raise DatabaseError(f"{db} failed verification: {len(r.missing)} missing and {len(r.corrupt)} "
-                            f"corrupt blocks, {len(r.sample_failures)} sample failures (rerun the build-db "
-                            "command to rebuild missing blocks and blocks whose data files are gone; delete "
-                            "a corrupt block's marker folder, _skyfix/blocks/rRRRR_cCCCC, to rebuild it)")
+                            f"corrupt blocks, {len(r.sample_failures)} sample failures ("
+                            + "; ".join(todo) + ")")
     if r.samples_skipped:
         click.echo("PARTIAL: every block intact, samples not re-rendered")
         ctx.exit(EXIT_SAMPLES_SKIPPED)

@@ -51,6 +51,8 @@ class VerifyReport:
     notes: list = field(default_factory=list)
     samples_requested: int = 0
     samples_skipped: str = ""
+    #: the DEM given to re-render samples is not the one the store was built from
+    dem_mismatch: bool = False
 
     @property
     def ok(self) -> bool:
@@ -134,6 +136,7 @@ def verify_database(path, *, dem=None, samples: int = 20, seed: int = 0) -> Veri
 
         dem = load_dems(dem)
     if dem.checksum != db.dem_sha256:
+        rep.dem_mismatch = True
         rep.sample_failures.append(f"DEM checksum {dem.checksum[:12]}... differs from the build's "
                                    f"{db.dem_sha256[:12]}...: not the DEM this database was built from")
         return rep
