@@ -93,7 +93,11 @@ def test_prior_area_without_database(world):
     # measured 0.11 m; the 1-sigma, calibrated to cover held-out errors as often as it claims,
     # 0.8-1.2 m as the model is refitted (the score surface's curvature alone said 0.09 m): it
     # covers the error and stays within twice scenario 2's 1 m
-    assert err <= fix.position_sigma_m < 2.0
+    assert err <= fix.features["position_sigma_basin_m"] < 2.0 <= fix.position_sigma_m or \
+        err <= fix.position_sigma_m < 2.0
+    # the reported one allows for another basin in the disc as far as the confidence does not
+    # rule it out (2.9 m at the 0.8 this fix gets)
+    assert fix.position_sigma_m >= fix.features["position_sigma_basin_m"]
     # rivals are other answers: candidates refined onto the fix are not listed again as rivals
     xy = [(c["x"], c["y"]) for c in fix.candidates]
     assert np.hypot(xy[0][0] - fix.x, xy[0][1] - fix.y) < 1e-6
@@ -177,6 +181,32 @@ def test_heading_only_mode(world):
         assert wrong.confidence < 0.2
 
 
+def test_an_unsure_fix_sigma_allows_for_another_basin_of_the_prior_disc(world, monkeypatch):
+    """The same fix at a confidence of 0.2: its basin's sigma (about a metre) would say it is
+    right to a metre while the confidence says it is likely wrong. The reported sigma
+    is the radius holding 63 % of errors when the rover is, four times in five, anywhere in the
+    20 m prior disc: metres, and a note says why."""
+    import importlib
+
+    from skyfix.pose.confidence import disc_share, wrong_basin_radius
+
+    pl = importlib.import_module("skyfix.pose.locate")  # the module, not the function it exports
+
+    dem, _ = world
+    tx, ty = 812.6, 701.2
+    prof = synthetic_profile(dem, tx, ty, 300.0, noise_deg=0.05, rng=4)
+    prior = (tx + 9.0, ty - 7.0)
+    sure = locate(prof, dem=dem, prior_xy=prior, prior_radius_m=20.0, config=CFG)
+    monkeypatch.setattr(pl, "confidence_from_features", lambda *a, **k: 0.2)
+    fix = locate(prof, dem=dem, prior_xy=prior, prior_radius_m=20.0, config=CFG)
+    assert (fix.x, fix.y) == (sure.x, sure.y) and fix.confidence == pytest.approx(0.2)
+    basin = fix.features["position_sigma_basin_m"]
+    assert basin < 2.0 and sure.position_sigma_m < fix.position_sigma_m
+    want = wrong_basin_radius(basin, 0.2, disc_share(*prior, 20.0, fix.x, fix.y))
+    assert fix.position_sigma_m == pytest.approx(want) and 5.0 < want < 20.0
+    assert any("another basin of the searched area" in n for n in fix.notes), fix.notes
+
+
 def test_heading_sigma_matches_the_scatter_over_noise_draws(world):
     """20 noise draws on one exact skyline at the true position: the reported 1-sigma heading is
     the spread of the estimates (ratio measured 1.0-1.35), and their mean is the truth. The query
@@ -200,7 +230,9 @@ def test_heading_sigma_matches_the_scatter_over_noise_draws(world):
             prof = Profile(q, np.full(360, noise), "body")
             hf = estimate_heading(prof, dem, x, y, h + 3.0, 10.0, model={}, position_sigma_m=0.0)
             err.append(_ang(hf.heading_deg - h))
-            sig.append(hf.heading_sigma_deg)
+            # the basin's own sigma: without a model the confidence is a fallback of at most 0.5,
+            # which the reported sigma widens for
+            sig.append(hf.features["heading_sigma_basin_deg"])
         assert estimate_heading(prof, dem, x, y, h + 3.0, 10.0,
                                 position_sigma_m=0.0).heading_sigma_deg >= sig[-1]
         err, sig = np.array(err), float(np.median(sig))
@@ -322,7 +354,9 @@ def test_the_position_sigma_allows_for_the_maps_height_error(world):
     share = real.features["position_sigma_map_m"]
     assert "position_sigma_map_m" not in exact.features
     assert 1.0 < share < 50.0  # metres, on a 10 m DEM with hills 300-1000 m away
-    assert real.position_sigma_m == pytest.approx(math.hypot(exact.position_sigma_m, share))
+    basin = "position_sigma_basin_m"  # before a wrong basin's chance widens the reported one
+    assert real.features[basin] == pytest.approx(math.hypot(exact.features[basin], share))
+    assert real.position_sigma_m >= real.features[basin]
     yaw = real.features["heading_sigma_map_deg"]
     assert 0.01 < yaw < 2.0
     assert real.heading_sigma_deg == pytest.approx(math.hypot(exact.heading_sigma_deg, yaw))

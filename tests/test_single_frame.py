@@ -366,3 +366,33 @@ def test_wrong_basin_sigma_holds_the_error_as_often_as_a_sigma_claims():
         assert np.mean(np.abs(err) <= s) == pytest.approx(math.erf(1 / math.sqrt(2)), abs=0.003)
     assert wrong_basin_sigma(0.3, 1.0, 10.0, 4.0) == pytest.approx(0.3)
     assert wrong_basin_sigma(0.3, 0.0, 10.0, 0.0) == pytest.approx(10.0 * math.erf(1 / math.sqrt(2)))
+
+
+def test_a_position_may_lie_in_another_basin_of_the_searched_area():
+    """The radial counterpart, against a direct draw: right (round normal, radial sigma s, so
+    s / sqrt(2) an axis) with probability c, else uniform over the prior disc or the
+    database's rectangle; 63.2 % within the radius returned."""
+    from skyfix.pose.confidence import disc_share, rect_share, wrong_basin_radius
+
+    rng = np.random.default_rng(3)
+    n = 300_000
+    for sigma, c, region in ((0.4, 0.5, "disc"), (3.0, 0.4, "rect"), (2.0, 0.97, "rect")):
+        right = rng.random(n) < c
+        if region == "disc":  # a 20 m prior disc about (0, 0), the answer at (6, -3)
+            ax, ay = 6.0, -3.0
+            r = 20.0 * np.sqrt(rng.random(n))
+            t = rng.uniform(0, 2 * np.pi, n)
+            wx, wy = r * np.cos(t), r * np.sin(t)
+            share = disc_share(0.0, 0.0, 20.0, ax, ay)
+        else:  # a 7 x 3 km database, the answer near a corner
+            ax, ay = 500.0, 2800.0
+            wx, wy = rng.uniform(0, 7000, n), rng.uniform(0, 3000, n)
+            share = rect_share(0.0, 7000.0, 0.0, 3000.0, ax, ay)
+        ex = np.where(right, rng.normal(0, sigma / math.sqrt(2), n), wx - ax)
+        ey = np.where(right, rng.normal(0, sigma / math.sqrt(2), n), wy - ay)
+        s = wrong_basin_radius(sigma, c, share)
+        assert np.mean(np.hypot(ex, ey) <= s) == pytest.approx(1 - math.exp(-1), abs=0.004)
+    # a confident fix keeps its sigma but for a hair
+    assert wrong_basin_radius(2.0, 1.0, rect_share(0, 7000, 0, 7000, 3500, 3500)) == \
+        pytest.approx(2.0, rel=1e-6)
+

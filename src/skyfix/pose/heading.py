@@ -234,6 +234,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     feat["heading_sigma_basin_deg"] = local  # for a filter that settles the basin by its track
     hsig = min(wrong_basin_sigma(hsig, conf, window_deg, wrap_deg(yaw - heading_prior_deg)),
                UNKNOWN_HEADING_SIGMA_DEG)
+    # the tilts' basin is the heading's
     psig = wrong_basin_sigma(psig, conf, PRIOR_TRUST_DEG, pitch - prior_pitch_deg)
     rsig = wrong_basin_sigma(rsig, conf, PRIOR_TRUST_DEG, roll - prior_roll_deg)
     if hsig > 2.0 * local:

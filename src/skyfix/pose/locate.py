@@ -38,8 +38,8 @@ from ..match import match_database, prepare_query, tilt_determinable
 from ..north import heading_360, meridian_convergence_deg, true_heading_deg, wrap_deg
 from ..progress import stage
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
-                         load_confidence_model, position_sigma, residual_correlation_bins,
-                         structureless_cap)
+                         disc_share, load_confidence_model, position_sigma, rect_share,
+                         residual_correlation_bins, structureless_cap, wrong_basin_radius)
 from .config import PoseConfig
 from .fix import UNKNOWN_HEADING_SIGMA_DEG, Fix, crs_and_lonlat, prior_disagreement
 from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
@@ -110,6 +110,16 @@ def degenerate_search(db, dem, x, y, prior_xy, prior_radius_m, tolerance_m, grid
         reasons.append(f"the answer lies within one grid step ({step:g} m) of the searched "
                        "area's edge: the rover may be outside it")
     return reasons
+
+
+def _searched_share(db, prior_xy, prior_radius_m, x, y):
+    """``r -> `` the share of the searched area within ``r`` [m] of (x, y): the prior disc where
+    one was given, else the database's grid (each position standing for its cell)."""
+    if prior_xy is not None and prior_radius_m is not None:
+        return disc_share(prior_xy[0], prior_xy[1], prior_radius_m, x, y)
+    xs, ys = np.asarray(db.x_coords, float), np.asarray(db.y_coords, float)
+    h = float(db.spacing_m) / 2.0
+    return rect_share(xs.min() - h, xs.max() + h, ys.min() - h, ys.max() + h, x, y)
 
 
 def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg, model, key):
@@ -389,6 +399,14 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
             log.info("confidence capped at %s: %s", DEGENERATE_CAP, r)
     if height_gap > 0:
         psig = math.hypot(psig, height_gap)
+    # the sigma so far is the basin's own; the confidence says how likely that basin is
+    basin = psig
+    feat["position_sigma_basin_m"] = basin  # for a filter that settles the basin by its track
+    psig = wrong_basin_radius(psig, conf, _searched_share(db, prior_xy, prior_radius_m, fx, fy))
+    if psig > 2.0 * basin:
+        notes.append(f"confidence {conf:.2f}: the position may lie in another basin of the searched "
+                     f"area, and position_sigma_m allows for that (the fit's own is {basin:.2f} m; "
+                     "the candidates list the rivals)")
     notes += prior_disagreement(pitch, roll, prior_pitch_deg, prior_roll_deg)
     if dem is None:
         notes.append("pitch_deg and roll_deg are the attitude prior echoed (no --dem to estimate "

@@ -74,7 +74,7 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
                    prior_roll_deg=acq.prior_roll_deg, camera_height_m=acq.camera_height_m,
                    config=cfg)
         return Measurement(f.grid_heading_deg, f.heading_sigma_deg, f.confidence, f.x, f.y,
-                           f.position_sigma_m)
+                           f.features.get("position_sigma_basin_m", f.position_sigma_m))
 
     return Measure(heading, fix)
 
