@@ -396,3 +396,30 @@ def test_a_position_may_lie_in_another_basin_of_the_searched_area():
     assert wrong_basin_radius(2.0, 1.0, rect_share(0, 7000, 0, 7000, 3500, 3500)) == \
         pytest.approx(2.0, rel=1e-6)
 
+
+def test_a_saved_profile_carries_the_camera_height_and_one_without_it_is_noted(dem_path,
+                                                                               tmp_path):
+    """``skyfix profile -o`` dropped the acquisition's camera height, so ``locate --profile`` and
+    ``heading --profile`` took 1.5 m for a camera 5 m up (3.7 m off at confidence 0.96) without
+    a word."""
+    acq = _frame(dem_path, tmp_path / "acq", yaw=40.0, pan=0.0, height=5.0)
+    prof = tmp_path / "p.json"
+    assert run("profile", acq, "-o", prof).exit_code == 0
+    d = json.loads(prof.read_text())
+    assert d["camera_height_m"] == 5.0
+    r = run("heading", "--profile", prof, "--dem", dem_path, "--x", X, "--y", Y,
+            "--heading-prior-deg", 44.0, "--prior-north", "grid")
+    assert r.exit_code == 0, r.output
+    assert not any("camera's height" in n for n in json.loads(r.stdout)["notes"])
+    d.pop("camera_height_m")
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(d))
+    for cmd in (("heading", "--profile", old, "--dem", dem_path, "--x", X, "--y", Y,
+                 "--heading-prior-deg", 44.0, "--prior-north", "grid"),
+                ("locate", "--profile", old, "--dem", dem_path, "--prior-x", X, "--prior-y", Y,
+                 "--prior-radius-m", 5)):
+        r = run(*cmd)
+        assert r.exit_code == 0, r.output
+        said = [n for n in json.loads(r.stdout)["notes"] if "camera's height" in n]
+        assert said and "taken as 1.5 m" in said[0] and "camera_height_m" in said[0]
+        assert "warning:" in r.stderr

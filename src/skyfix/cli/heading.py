@@ -108,6 +108,10 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
         note("warning: " + message)
         notes.append(message)
 
+    if camera_height_m is None and cam_h is None:
+        warn(f"{profile_path} does not say the camera's height above the ground "
+             "(camera_height_m): taken as 1.5 m; give --camera-height-m, or profile the "
+             "acquisition again (skyfix profile writes it)")
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     if prior_north == "true" and not math.isfinite(conv) and window_deg < 180:
         warn(f"{dem_path} has no CRS that says where true north is: the heading prior is taken "

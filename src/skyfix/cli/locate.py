@@ -264,7 +264,16 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     # the profile in the database's bins: a store of 90 bins made a 360-bin profile it then
     # refused, after detection
     prof, pp, pr, cam_h = read_profile(acq, profile_path, frames, detector, db)
-    if profile_path is not None:
+    if profile_path is not None and cam_h is None:
+        # as pose.locate takes it: the database's height, else 1.5 m
+        cam_h = float(getattr(db, "camera_height_m", None) or 1.5)
+        msg = (f"{profile_path} does not say the camera's height above the ground "
+               f"(camera_height_m): taken as {cam_h:g} m"
+               + (", the database's" if db is not None else "")
+               + "; profile the acquisition again (skyfix profile writes it) or add it")
+        note("warning: " + msg)
+        notes.append(msg)
+    elif profile_path is not None:
         notes += _check_camera_height(db, db_path, cam_h)
     from ..match import PRESETS
     from ..pose import PoseConfig, locate as _locate
