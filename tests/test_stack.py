@@ -175,3 +175,21 @@ def test_a_simulated_panorama_of_the_stack_is_that_of_the_dem_merged_by_hand(sta
     # what the fine DEM alone shows there
     for col in (950, 960, 970):
         assert a[col] < fine_only[col] - 10.0, (a[col], fine_only[col])
+
+
+def test_horizon_of_a_stack_prints_its_summary(stack_files, tmp_path):
+    """`skyfix horizon FINE --dem COARSE` printed a traceback ('DemStack' has no describe)
+    unless --json was given; the summary names every member, finest first, and the plot is
+    written."""
+    from conftest import cli_run
+
+    fine_path, coarse_path, _, _ = stack_files
+    png = tmp_path / "h.png"
+    r = cli_run("horizon", fine_path, "--dem", coarse_path, "--x", X0 + 8000.0, "--y", Y0 - 8000.0,
+                "--plot", png)
+    assert r.exit_code == 0, r.output
+    assert "Traceback" not in r.output and "2 DEMs, the finest wins" in r.output
+    lines = r.output.splitlines()
+    i = next(k for k, s in enumerate(lines) if "2 DEMs" in s)
+    assert "fine.tif" in lines[i + 1] and "coarse.tif" in lines[i + 2]
+    assert png.stat().st_size > 10_000

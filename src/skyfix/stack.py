@@ -63,6 +63,11 @@ class DemStack:
         b = np.array([m.bounds for m in self.members])
         return (float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()), float(b[:, 3].max()))
 
+    def describe(self) -> str:
+        """One line per member, finest first, as :meth:`skyfix.dem.Dem.describe` gives it."""
+        return f"{len(self.members)} DEMs, the finest wins where it has heights:\n" + \
+            "\n".join(f"  {m.describe()}" for m in self.members)
+
     def height_at(self, x, y):
         """Height [m] of the finest member with one at (x, y) [m] (NaN where none)."""
         x, y = np.asarray(x, float), np.asarray(y, float)
