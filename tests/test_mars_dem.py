@@ -146,3 +146,25 @@ def test_points_by_longitude_and_latitude_on_the_dems_body(tmp_path, terrain):
     both = CliRunner().invoke(cli, ["horizon", str(geo), "--x", "0", "--y", "0", "--lon", "77.5",
                                     "--lat", "18.4"])
     assert both.exit_code == 2 and "not both" in both.output
+
+
+def test_a_mars_fix_geojson_says_whose_longitudes_it_holds(tmp_path, terrain):
+    """GeoJSON means Earth's WGS 84: a Mars fix's lon/lat, written plain, put it in India in a
+    GIS. The collection names the body and its geodetic CRS, and the command warns."""
+    from pyproj import CRS
+
+    from skyfix.cli.provenance import fix_geojson, off_earth_warning
+    from skyfix.pose.fix import Fix, crs_and_lonlat
+
+    geo, _ = _mars_files(tmp_path, terrain.z)
+    dem = load_dem(geo)
+    crs, lon, lat = crs_and_lonlat(dem.crs_wkt, 100.0, -50.0)
+    fix = Fix(100.0, -50.0, crs, lon, lat, 10.0, 10.0, 0.0, 0.0, 0.0, 3.0, 0.5, 0.9, 0.01)
+    gj = fix_geojson(fix)
+    assert gj["type"] == "FeatureCollection" and gj["body"] == "mars"
+    assert CRS.from_wkt(gj["geodetic_crs"]).is_geographic
+    assert "Mars" in CRS.from_wkt(gj["geodetic_crs"]).ellipsoid.name or \
+        CRS.from_wkt(gj["geodetic_crs"]).ellipsoid.semi_major_metre < 3.5e6
+    w = off_earth_warning("f.geojson", fix.crs)
+    assert w and "mars longitudes and latitudes" in w and "on Earth" in w
+    assert off_earth_warning("f.geojson", "EPSG:32611") is None

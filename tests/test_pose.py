@@ -328,6 +328,10 @@ def test_cli_locate_and_heading_from_a_profile(world, tmp_path):
     assert np.hypot(fix["x"] - 812.6, fix["y"] - 701.2) < 1.5
     gj = json.loads((tmp_path / "fix.geojson").read_text())
     assert gj["features"][0]["geometry"]["type"] == "Point"
+    # the 1-sigma ring runs anticlockwise (RFC 7946 3.1.6): a positive signed area
+    ring = gj["features"][1]["geometry"]["coordinates"][0]
+    assert sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(ring, ring[1:])) > 0
+    assert "body" not in gj and "GIS tools read GeoJSON" not in r.output  # on Earth
     again = CliRunner().invoke(cli, ["locate", "--profile", str(tmp_path / "p.json"), "--dem",
                                      str(dem_path), "--prior-x", "820", "--prior-y", "695",
                                      "--prior-radius-m", "20", "-o", str(tmp_path / "fix.json")])

@@ -85,7 +85,7 @@ def _write_outputs(fix, out, geojson, prov=None):
     """The fix as JSON (``out``, else stdout) with its provenance, and GeoJSON (the fix, its
     1-sigma circle and the candidates as features); paths checked before any work."""
     from .._io import to_json, write_json
-    from .provenance import fix_geojson
+    from .provenance import fix_geojson, off_earth_warning
 
     d = fix.to_dict()
     if prov is not None:
@@ -96,6 +96,9 @@ def _write_outputs(fix, out, geojson, prov=None):
         click.echo(to_json(d, indent=1))
     if geojson is not None:
         write_json(geojson, fix_geojson(fix))
+        warning = off_earth_warning(geojson, fix.crs)
+        if warning:
+            note("warning: " + warning)
 
 
 def _write_score_map(path, mres, db):

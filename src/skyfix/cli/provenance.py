@@ -68,7 +68,8 @@ def ellipse_lonlat(crs_wkt: str, x: float, y: float, sigma_m: float, n: int = 48
     crs = CRS.from_user_input(crs_wkt)
     geo = "EPSG:4326" if planet_from_crs(crs) in (EARTH, None) else crs.geodetic_crs
     t = Transformer.from_crs(crs, geo, always_xy=True)
-    a = [2 * math.pi * k / n for k in range(n)] + [0.0]
+    # anticlockwise (north, then west), as RFC 7946 asks of an exterior ring
+    a = [-2 * math.pi * k / n for k in range(n)] + [0.0]
     lon, lat = t.transform([x + sigma_m * math.sin(v) for v in a], [y + sigma_m * math.cos(v) for v in a])
     return [[float(u), float(v)] for u, v in zip(lon, lat)]
 
@@ -100,4 +101,41 @@ def fix_geojson(fix) -> dict:
             feats.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon, lat]},
                           "properties": {"role": "candidate", "rank": k, **c,
                                          "marker-color": "#7f7f7f", "marker-size": "small"}})
-    return {"type": "FeatureCollection", "features": feats}
+    return with_body({"type": "FeatureCollection", "features": feats}, fix.crs)
+
+
+def off_earth(crs) -> tuple[str, str] | None:
+    """(body name, WKT of its geodetic CRS) when ``crs`` (any pyproj input) lies on another body
+    than Earth, else None."""
+    if not crs:
+        return None
+    from pyproj import CRS
+
+    from ..planets import EARTH, planet_from_crs
+
+    c = CRS.from_user_input(crs)
+    body = planet_from_crs(c)
+    if body in (EARTH, None):
+        return None
+    return body.name, c.geodetic_crs.to_wkt()
+
+
+def with_body(collection: dict, crs) -> dict:
+    """``collection`` with, off Earth, foreign members saying whose longitudes and latitudes its
+    coordinates are: GeoJSON means Earth's WGS 84 (RFC 7946), and a GIS would put a Mars fix on
+    Earth."""
+    other = off_earth(crs)
+    if other is not None:
+        collection = {"type": collection["type"], "body": other[0], "geodetic_crs": other[1],
+                      **{k: v for k, v in collection.items() if k != "type"}}
+    return collection
+
+
+def off_earth_warning(path, crs) -> str | None:
+    """The warning to print when GeoJSON written to ``path`` holds another body's coordinates."""
+    other = off_earth(crs)
+    if other is None:
+        return None
+    return (f"{path} holds {other[0]} longitudes and latitudes (its 'body' and 'geodetic_crs' say "
+            "so): GIS tools read GeoJSON as Earth's WGS 84 and will place it on Earth; set that "
+            "geodetic CRS on the layer, or use the fix's x, y in its work CRS")

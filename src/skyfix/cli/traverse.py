@@ -133,6 +133,7 @@ def write_track(out, rows, crs_wkt) -> None:
     Earth, the body's own geodetic coordinates elsewhere; work-CRS x, y in the properties)."""
     from .._io import write_json
     from ..pose.fix import crs_and_lonlat
+    from .provenance import with_body
 
     feats, line = [], []
     for r in rows:
@@ -144,7 +145,8 @@ def write_track(out, rows, crs_wkt) -> None:
                       "properties": props})
     track = {"type": "Feature", "geometry": {"type": "LineString", "coordinates": line},
              "properties": {"name": "fused track", "stops": len(rows)}}
-    write_json(out / "track.geojson", {"type": "FeatureCollection", "features": [track] + feats})
+    write_json(out / "track.geojson", with_body({"type": "FeatureCollection",
+                                                 "features": [track] + feats}, crs_wkt))
 
 
 @click.command("simulate-traverse")
