@@ -188,7 +188,7 @@ def test_an_unsure_fix_sigma_allows_for_another_basin_of_the_prior_disc(world, m
     20 m prior disc: metres, and a note says why."""
     import importlib
 
-    from skyfix.pose.confidence import disc_share, wrong_basin_radius
+    from skyfix.pose.basin_sigma import disc_share, wrong_basin_radius
 
     pl = importlib.import_module("skyfix.pose.locate")  # the module, not the function it exports
 

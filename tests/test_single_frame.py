@@ -353,7 +353,7 @@ def test_no_angle_is_determined_at_a_heading_likely_wrong(dem_path, monkeypatch)
 def test_wrong_basin_sigma_holds_the_error_as_often_as_a_sigma_claims():
     """Against a direct draw of the mixture it describes: right (normal, sigma) with probability
     c, else uniform over the window about the prior."""
-    from skyfix.pose.confidence import wrong_basin_sigma
+    from skyfix.pose.basin_sigma import wrong_basin_sigma
 
     rng = np.random.default_rng(0)
     for sigma, c, w, off in ((0.4, 0.9, 10.0, 2.0), (1.37, 0.55, 10.0, 5.0), (0.8, 0.3, 180.0, 0.0),
@@ -372,7 +372,7 @@ def test_a_position_may_lie_in_another_basin_of_the_searched_area():
     """The radial counterpart, against a direct draw: right (round normal, radial sigma s, so
     s / sqrt(2) an axis) with probability c, else uniform over the prior disc or the
     database's rectangle; 63.2 % within the radius returned."""
-    from skyfix.pose.confidence import disc_share, rect_share, wrong_basin_radius
+    from skyfix.pose.basin_sigma import disc_share, rect_share, wrong_basin_radius
 
     rng = np.random.default_rng(3)
     n = 300_000

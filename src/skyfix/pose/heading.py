@@ -14,9 +14,9 @@ from ..errors import ParameterError
 from ..match import prepare_query, score_profiles, tilt_determinable
 from ..north import heading_360, meridian_convergence_deg, true_heading_deg, wrap_deg
 from .attitude import fit_attitude
+from .basin_sigma import wrong_basin_sigma
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
-                         load_confidence_model, residual_correlation_bins, structureless_cap,
-                         wrong_basin_sigma)
+                         load_confidence_model, residual_correlation_bins, structureless_cap)
 from .fix import (DETERMINED_MIN_CONFIDENCE, DETERMINED_SIGMA_DEG, PRIOR_TRUST_DEG,
                   UNKNOWN_HEADING_SIGMA_DEG, UNKNOWN_TILT_SIGMA_DEG, HeadingFix, crs_and_lonlat,
                   near_skyline, prior_disagreement)
@@ -105,8 +105,8 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     does to it (:func:`position_heading_sigma_deg`). ``notes``: what the caller already knows the
     result should say (as :func:`~skyfix.pose.locate.locate`'s); the search adds its own.
 
-    The sigmas [deg] returned allow for a wrong basin (:func:`~skyfix.pose.confidence.
-    wrong_basin_sigma`): with probability 1 - confidence the heading is anywhere in the window
+    The sigmas [deg] returned allow for a wrong basin
+    (:func:`~skyfix.pose.basin_sigma.wrong_basin_sigma`): with probability 1 - confidence the heading is anywhere in the window
     and pitch and roll anywhere within PRIOR_TRUST_DEG of the inclinometer's prior. Single
     frames with map errors (``bench_single_frame.py``, seeds 0 and 2): the errors beyond the
     bars within 1 sigma, heading 55 -> 91 % and 71 -> 94 %, roll 31 -> 92 % and 44 -> 76 %; all

@@ -37,9 +37,10 @@ from ..errors import ParameterError, SkyfixError
 from ..match import match_database, prepare_query, tilt_determinable
 from ..north import heading_360, meridian_convergence_deg, true_heading_deg, wrap_deg
 from ..progress import stage
+from .basin_sigma import disc_share, rect_share, wrong_basin_radius
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
-                         disc_share, load_confidence_model, position_sigma, rect_share,
-                         residual_correlation_bins, structureless_cap, wrong_basin_radius)
+                         load_confidence_model, position_sigma, residual_correlation_bins,
+                         structureless_cap)
 from .config import PoseConfig
 from .fix import UNKNOWN_HEADING_SIGMA_DEG, Fix, crs_and_lonlat, prior_disagreement
 from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
