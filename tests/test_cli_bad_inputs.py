@@ -573,14 +573,18 @@ def test_heading_json_carries_the_warnings_it_prints(tmp_path, dem_file, profile
 
     path = shared_dem_path("south_glacier_20m")
     x, y = 601_500.0, 6_744_000.0
-    write_profile_json(tmp_path / "p.json", pose.synthetic_profile(load_dem(path), x, y, 80.0,
-                                                                   noise_deg=0.05, rng=1))
+    prof = pose.synthetic_profile(load_dem(path), x, y, 80.0, noise_deg=0.05, rng=1)
+    prof.meta["camera_height_m"] = 1.5  # as skyfix profile writes it: no note for its absence
+    write_profile_json(tmp_path / "p.json", prof)
     base = ("--profile", tmp_path / "p.json", "--dem", path, "--x", x, "--y", y, "--prior-north",
             "grid", "--heading-prior-deg")
     for cmd in ("heading", "attitude"):
         r = run(cmd, *base, 95)  # truth 15 deg off, window +-10: pinned to the window's edge
         assert r.exit_code == 0, r.output
-        (said,) = json.loads(r.stdout)["notes"]
+        # the edge, and (its confidence at most 0.05) the sigmas allowing for another basin
+        notes = json.loads(r.stdout)["notes"]
+        assert len(notes) == 2 and any("another basin of the +-10 deg window" in n for n in notes)
+        (said,) = [n for n in notes if "another basin" not in n]
         assert said.startswith("the heading ") and "is on the edge of the window 95 +- 10" in said
         # in the window's own north: the grid edge is 85 or 105, not a true heading beside it
         shown = float(said.split()[2])
