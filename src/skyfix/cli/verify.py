@@ -46,8 +46,8 @@ def verify(ctx, db, dem, samples, seed):
         # advice for what was found, not for every kind of failure
         todo = []
         if r.missing or r.corrupt:
-            todo.append("rerun the build-db command to rebuild missing blocks and blocks whose data "
-                        "files are gone; delete a corrupt block's marker folder, "
+            todo.append("rerun the build-db command to rebuild missing blocks and blocks whose "
+                        "data files are gone; delete a corrupt block's marker folder, "
                         "_skyfix/blocks/rRRRR_cCCCC, to rebuild it")
         if r.dem_mismatch:
             todo.append("pass --dem the DEM the database was built from (`skyfix info DB` names it)"

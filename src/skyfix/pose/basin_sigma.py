@@ -103,7 +103,8 @@ def disc_share(cx: float, cy: float, radius_m: float, x: float, y: float):
             return 0.0
         a1 = r * r * math.acos(min(1.0, max(-1.0, (d * d + r * r - big * big) / (2 * d * r))))
         a2 = big * big * math.acos(min(1.0, max(-1.0, (d * d + big * big - r * r) / (2 * d * big))))
-        a3 = 0.5 * math.sqrt(max(0.0, (-d + r + big) * (d + r - big) * (d - r + big) * (d + r + big)))
+        a3 = 0.5 * math.sqrt(max(0.0, (-d + r + big) * (d + r - big) * (d - r + big)
+                                 * (d + r + big)))
         return (a1 + a2 - a3) / (math.pi * big * big)
 
     return share

@@ -405,9 +405,9 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     feat["position_sigma_basin_m"] = basin  # for a filter that settles the basin by its track
     psig = wrong_basin_radius(psig, conf, _searched_share(db, prior_xy, prior_radius_m, fx, fy))
     if psig > 2.0 * basin:
-        notes.append(f"confidence {conf:.2f}: the position may lie in another basin of the searched "
-                     f"area, and position_sigma_m allows for that (the fit's own is {basin:.2f} m; "
-                     "the candidates list the rivals)")
+        notes.append(f"confidence {conf:.2f}: the position may lie in another basin of the "
+                     f"searched area, and position_sigma_m allows for that (the fit's own is "
+                     f"{basin:.2f} m; the candidates list the rivals)")
     notes += prior_disagreement(pitch, roll, prior_pitch_deg, prior_roll_deg)
     if dem is None:
         notes.append("pitch_deg and roll_deg are the attitude prior echoed (no --dem to estimate "

@@ -105,9 +105,10 @@ def profile_from_skylines(acq: Acquisition, skylines: Sequence[Skyline | None], 
     el, sigma, count = merge_samples(vals, sigs, wts)
     disagree = disagreeing_frames(vals, used)
     for d in disagree:
-        log.warning("frames %d and %d disagree by %.1f deg (median over %d shared bins) where they "
-                    "overlap: a wrong pan_deg or tilt_deg in acquisition.json, or a skyline detected "
-                    "wrong in one of them (the merged profile's sigma there says so)", d["i"], d["j"], d["median_deg"], d["bins"])
+        log.warning("frames %d and %d disagree by %.1f deg (median over %d shared bins) where "
+                    "they overlap: a wrong pan_deg or tilt_deg in acquisition.json, or a skyline "
+                    "detected wrong in one of them (the merged profile's sigma there says so)",
+                    d["i"], d["j"], d["median_deg"], d["bins"])
     contributors = [[used[m] for m in np.flatnonzero(np.isfinite(vals[k]))] for k in range(azimuth_bins)]
     for m, i in enumerate(used):
         records[i].update(pan_deg=float(pans[m] + delta[m]), pan_correction_deg=float(delta[m]),
