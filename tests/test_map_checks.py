@@ -74,6 +74,10 @@ def test_a_fix_on_the_edge_of_the_searched_area_is_not_confident(files):
     assert np.hypot(fix.x - 505.0, fix.y - 450.0) < 1.0
     assert fix.confidence < 0.5 and any("within one grid step (10 m) of the searched area's edge"
                                         in n for n in fix.notes), fix.notes
+    # the cap says the rover may lie outside the area, not in another basin inside it: the
+    # sigma is the basin's (spread over the area it was 183 m for a fix 0.2 m off)
+    assert fix.position_sigma_m == pytest.approx(fix.features["position_sigma_basin_m"], rel=0.1)
+    assert not any("another basin" in n for n in fix.notes)
 
 
 def test_a_fix_refined_out_of_the_database_is_kept_and_said_to_lie_outside(files):

@@ -356,8 +356,11 @@ def test_wrong_basin_sigma_holds_the_error_as_often_as_a_sigma_claims():
     from skyfix.pose.basin_sigma import wrong_basin_sigma
 
     rng = np.random.default_rng(0)
+    # windows past 90 deg: their far side lies near the other end, the short way round (the sigma
+    # was 181 deg for 103 at +-170)
     for sigma, c, w, off in ((0.4, 0.9, 10.0, 2.0), (1.37, 0.55, 10.0, 5.0), (0.8, 0.3, 180.0, 0.0),
-                             (0.2, 0.7, 10.0, 9.5)):
+                             (0.2, 0.7, 10.0, 9.5), (0.5, 0.3, 170.0, -165.0),
+                             (0.5, 0.5, 150.0, 140.0)):
         n = 400_000
         right = rng.random(n) < c
         truth_wrong = rng.uniform(-w, w, n) if w < 180 else rng.uniform(-180, 180, n)
@@ -423,3 +426,46 @@ def test_a_saved_profile_carries_the_camera_height_and_one_without_it_is_noted(d
         said = [n for n in json.loads(r.stdout)["notes"] if "camera's height" in n]
         assert said and "taken as 1.5 m" in said[0] and "camera_height_m" in said[0]
         assert "warning:" in r.stderr
+
+
+def test_a_database_searched_inside_a_prior_disc_spreads_over_both():
+    """With --db and a prior disc, the searched area is the grid inside the disc: a 5 km disc
+    about a 425 m database spread a right fix's sigma over 2.9 km. Against a direct draw."""
+    from skyfix.pose.basin_sigma import rect_share, wrong_basin_radius
+
+    rng = np.random.default_rng(4)
+    n = 300_000
+    x0, x1, y0, y1, disc = 0.0, 425.0, 0.0, 425.0, (300.0, 100.0, 200.0)
+    # uniform over rectangle and disc both: draw in the rectangle, keep those in the disc
+    ux, uy = rng.uniform(x0, x1, 3 * n), rng.uniform(y0, y1, 3 * n)
+    keep = np.hypot(ux - disc[0], uy - disc[1]) <= disc[2]
+    ux, uy = ux[keep][:n], uy[keep][:n]
+    ax, ay, sigma, c = 250.0, 150.0, 5.0, 0.6
+    right = rng.random(ux.size) < c
+    ex = np.where(right, rng.normal(0, sigma / math.sqrt(2), ux.size), ux - ax)
+    ey = np.where(right, rng.normal(0, sigma / math.sqrt(2), ux.size), uy - ay)
+    s = wrong_basin_radius(sigma, c, rect_share(x0, x1, y0, y1, ax, ay, disc=disc))
+    assert np.mean(np.hypot(ex, ey) <= s) == pytest.approx(1 - math.exp(-1), abs=0.005)
+    # a disc far wider than the grid changes nothing; an empty region widens nothing
+    wide = wrong_basin_radius(sigma, c, rect_share(x0, x1, y0, y1, ax, ay, disc=(200, 200, 5000)))
+    alone = wrong_basin_radius(sigma, c, rect_share(x0, x1, y0, y1, ax, ay))
+    assert wide == pytest.approx(alone, rel=0.01) and alone < 425
+    assert wrong_basin_radius(sigma, c, rect_share(x0, x1, y0, y1, ax, ay, disc=(5e4, 0, 10))) \
+        == pytest.approx(sigma)
+
+
+def test_a_confidence_capped_for_the_sigmas_own_width_does_not_widen_it_again(dem_path):
+    """A rough position known to 200 m: the heading's own sigma spans degrees, and the
+    confidence is capped at the chance such a sigma stays within 1 deg. That cap speaks of the
+    sigma's width, which the sigma carries: a right heading came out +-94 deg, its pitch and
+    roll +-5 deg for 0.02 of their own."""
+    from skyfix.pose import estimate_heading, synthetic_profile
+
+    dem = load_dem(dem_path)
+    prof = synthetic_profile(dem, X, Y, 40.0, noise_deg=0.05, rng=5)
+    hf = estimate_heading(prof, dem, X, Y, 45.0, 180.0, position_sigma_m=200.0)
+    own = hf.features["heading_sigma_basin_deg"]
+    assert own > 2.0 and hf.confidence == pytest.approx(math.erf(1 / (own * math.sqrt(2))))
+    assert _angle(hf.grid_heading_deg - 40.0) < 1.0
+    assert hf.heading_sigma_deg < 1.5 * own and hf.roll_sigma_deg < 1.0
+    assert not any("another basin" in n for n in hf.notes)

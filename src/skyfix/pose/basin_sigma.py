@@ -43,7 +43,12 @@ def wrong_basin_sigma(sigma: float, confidence: float, half_width: float,
     def wrong(r):  # P(|error| <= r) when the truth is uniform over the window
         if w >= 180.0:
             return min(2.0 * r, 360.0) / 360.0
-        return max(0.0, min(d + r, w) - max(d - r, -w)) / (2.0 * w)
+        if w <= 0.0 or r >= 180.0:
+            return 1.0
+        # the truths within r of the answer, the way round the circle that is shorter: past
+        # 90 deg a window's far side lies near its other end
+        inside = sum(max(0.0, min(d + r + k, w) - max(d - r + k, -w)) for k in (-360.0, 0.0, 360.0))
+        return min(inside, 2.0 * w) / (2.0 * w)
 
     def share(r):
         right = math.erf(r / (sigma * math.sqrt(2.0))) if sigma > 0 else 1.0
@@ -110,10 +115,30 @@ def disc_share(cx: float, cy: float, radius_m: float, x: float, y: float):
     return share
 
 
-def rect_share(x0: float, x1: float, y0: float, y1: float, x: float, y: float, strips: int = 256):
-    """``r -> `` the share of the rectangle [x0, x1] x [y0, y1] [m] within ``r`` [m] of (x, y),
-    by the midpoint rule over ``strips`` strips of the disc (to about 0.1 %)."""
-    area = max((x1 - x0) * (y1 - y0), 1e-9)
+def rect_share(x0: float, x1: float, y0: float, y1: float, x: float, y: float, strips: int = 256,
+               disc: tuple | None = None):
+    """``r -> `` the share of the rectangle [x0, x1] x [y0, y1] [m] (within the disc ``(cx, cy,
+    radius)`` [m] too, when given: a database searched inside a prior disc) within ``r`` [m] of
+    (x, y), by the midpoint rule over ``strips`` strips (to about 0.1 %). An empty region gives
+    1 at every ``r``: nothing to spread over."""
+    if disc is not None:
+        cx, cy, big = (float(v) for v in disc)
+        x0, x1 = max(x0, cx - big), min(x1, cx + big)
+
+    def bounds(u):  # the region's extent in y at abscissae u
+        lo, hi = np.full(u.shape, float(y0)), np.full(u.shape, float(y1))
+        if disc is not None:
+            h = np.sqrt(np.maximum(big * big - (u - cx) ** 2, 0.0))
+            lo, hi = np.maximum(lo, cy - h), np.minimum(hi, cy + h)
+        return lo, hi
+
+    area = 0.0
+    if x1 > x0:
+        u = x0 + (np.arange(4 * strips) + 0.5) * (x1 - x0) / (4 * strips)
+        lo, hi = bounds(u)
+        area = float(np.clip(hi - lo, 0.0, None).sum() * (x1 - x0) / (4 * strips))
+    if area <= 1e-9:
+        return lambda r: 1.0
 
     def share(r):
         a, b = max(x0, x - r), min(x1, x + r)
@@ -121,7 +146,8 @@ def rect_share(x0: float, x1: float, y0: float, y1: float, x: float, y: float, s
             return 0.0
         xs = a + (np.arange(strips) + 0.5) * (b - a) / strips
         half = np.sqrt(np.maximum(r * r - (xs - x) ** 2, 0.0))
-        length = np.clip(np.minimum(y1, y + half) - np.maximum(y0, y - half), 0.0, None)
+        lo, hi = bounds(xs)
+        length = np.clip(np.minimum(hi, y + half) - np.maximum(lo, y - half), 0.0, None)
         return float(min(1.0, length.sum() * (b - a) / strips / area))
 
     return share

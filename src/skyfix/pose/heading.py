@@ -221,6 +221,9 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
         psig = max(psig, img.pitch_sigma_deg)
         rsig = max(rsig, img.roll_sigma_deg)
     hsig = min(hsig, UNKNOWN_HEADING_SIGMA_DEG)
+    # what the confidence says of the basin: the cap below speaks of the sigma's own width,
+    # which the sigma already carries (counted twice, a right heading came out +-94 deg)
+    basin_conf = conf
     if hsig > 2.0 * HEADING_TOLERANCE_DEG:
         # A heading whose own sigma spans twice the tolerance is not likely right, however well
         # the profile fits: e.g. a rough position known to kilometres, whose near and far skylines
@@ -232,15 +235,15 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     # the sigmas so far are the basin's own; the confidence says how likely that basin is
     local = hsig
     feat["heading_sigma_basin_deg"] = local  # for a filter that settles the basin by its track
-    hsig = min(wrong_basin_sigma(hsig, conf, window_deg, wrap_deg(yaw - heading_prior_deg)),
-               UNKNOWN_HEADING_SIGMA_DEG)
+    hsig = min(wrong_basin_sigma(hsig, basin_conf, window_deg,
+                                 wrap_deg(yaw - heading_prior_deg)), UNKNOWN_HEADING_SIGMA_DEG)
     # the tilts' basin is the heading's
-    psig = wrong_basin_sigma(psig, conf, PRIOR_TRUST_DEG, pitch - prior_pitch_deg)
-    rsig = wrong_basin_sigma(rsig, conf, PRIOR_TRUST_DEG, roll - prior_roll_deg)
+    psig = wrong_basin_sigma(psig, basin_conf, PRIOR_TRUST_DEG, pitch - prior_pitch_deg)
+    rsig = wrong_basin_sigma(rsig, basin_conf, PRIOR_TRUST_DEG, roll - prior_roll_deg)
     if hsig > 2.0 * local:
-        notes = (*notes, f"confidence {conf:.2f}: the heading may lie in another basin of the "
-                         f"+-{window_deg:g} deg window, and the sigmas allow for that (the fit's "
-                         f"own heading sigma is {local:.2f} deg)")
+        notes = (*notes, f"the heading may lie in another basin of the +-{window_deg:g} deg window "
+                         f"(a chance of {1.0 - basin_conf:.2f}), and the sigmas allow for that "
+                         f"(the fit's own heading sigma is {local:.2f} deg)")
     psig, rsig = min(psig, UNKNOWN_TILT_SIGMA_DEG), min(rsig, UNKNOWN_TILT_SIGMA_DEG)
     log.info("heading %.2f deg (grid) +- %.2f, confidence %.2f (%.2f s in all)", grid, hsig, conf,
              time.perf_counter() - t0)

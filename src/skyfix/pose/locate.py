@@ -114,13 +114,14 @@ def degenerate_search(db, dem, x, y, prior_xy, prior_radius_m, tolerance_m, grid
 
 
 def _searched_share(db, prior_xy, prior_radius_m, x, y):
-    """``r -> `` the share of the searched area within ``r`` [m] of (x, y): the prior disc where
-    one was given, else the database's grid (each position standing for its cell)."""
-    if prior_xy is not None and prior_radius_m is not None:
-        return disc_share(prior_xy[0], prior_xy[1], prior_radius_m, x, y)
+    """``r -> `` the share of the searched area within ``r`` [m] of (x, y): the database's grid
+    (each position standing for its cell), inside the prior disc where one was given."""
+    disc = None if prior_xy is None or prior_radius_m is None else (*prior_xy, prior_radius_m)
+    if db is None:
+        return disc_share(*disc, x, y)
     xs, ys = np.asarray(db.x_coords, float), np.asarray(db.y_coords, float)
     h = float(db.spacing_m) / 2.0
-    return rect_share(xs.min() - h, xs.max() + h, ys.min() - h, ys.max() + h, x, y)
+    return rect_share(xs.min() - h, xs.max() + h, ys.min() - h, ys.max() + h, x, y, disc=disc)
 
 
 def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg, model, key):
@@ -390,6 +391,9 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     log.info("fix (%.1f, %.1f), grid heading %.2f, pitch %.2f, roll %.2f deg; clipped cost %.4f "
              "deg^2; confidence %.2f before caps", fx, fy, heading, pitch, roll, best_s, conf)
     log.debug("confidence features: %s", ", ".join(f"{k} {v:.3g}" for k, v in feat.items()))
+    # what the confidence says of the basin: the caps below speak of the searched area (the
+    # rover may lie outside it), not of another basin inside it
+    basin_conf = conf
     degenerate = degenerate_search(db, dem, fx, fy, prior_xy, prior_radius_m,
                                    config.tolerance_m if db is not None else 1.0,
                                    config.grid_step_m)
@@ -403,11 +407,12 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     # the sigma so far is the basin's own; the confidence says how likely that basin is
     basin = psig
     feat["position_sigma_basin_m"] = basin  # for a filter that settles the basin by its track
-    psig = wrong_basin_radius(psig, conf, _searched_share(db, prior_xy, prior_radius_m, fx, fy))
+    psig = wrong_basin_radius(psig, basin_conf,
+                              _searched_share(db, prior_xy, prior_radius_m, fx, fy))
     if psig > 2.0 * basin:
-        notes.append(f"confidence {conf:.2f}: the position may lie in another basin of the "
-                     f"searched area, and position_sigma_m allows for that (the fit's own is "
-                     f"{basin:.2f} m; the candidates list the rivals)")
+        notes.append(f"the position may lie in another basin of the searched area (a chance of "
+                     f"{1.0 - basin_conf:.2f}), and position_sigma_m allows for that (the fit's "
+                     f"own is {basin:.2f} m; the candidates list the rivals)")
     notes += prior_disagreement(pitch, roll, prior_pitch_deg, prior_roll_deg)
     if dem is None:
         notes.append("pitch_deg and roll_deg are the attitude prior echoed (no --dem to estimate "
