@@ -365,3 +365,19 @@ def test_a_database_that_does_not_reach_the_route_leaves_the_fixes_to_the_dem(si
     assert all(r_["operator_request"] is None for r_ in rows)
     for a, b in zip(rows, plain):  # the same fixes as without the database
         assert math.hypot(a["x"] - b["x"], a["y"] - b["y"]) < 1e-6
+
+
+def test_an_output_written_when_sigmas_meant_the_worst_axis_is_not_resumed(simulated, fused,
+                                                                           tmp_path):
+    """Its lines' position_sigma_m were the worst axis's; resumed, new lines would be radial
+    beside them without a word."""
+    import shutil
+
+    dem, trav = simulated
+    out = tmp_path / "old"
+    shutil.copytree(fused[0], out)
+    rec = json.loads((out / "run.json").read_text())
+    del rec["params"]["position_sigma"]
+    (out / "run.json").write_text(json.dumps(rec))
+    r = run("traverse", trav, "--dem", dem, "-o", out, "--detector", "dp", "--no-plot")
+    assert r.exit_code == 2 and "what position_sigma_m means" in r.output, r.output

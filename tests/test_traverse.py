@@ -372,3 +372,26 @@ def test_position_sigmas_in_and_out_are_radial_as_a_fixs():
     rng = np.random.default_rng(1)
     err = rng.multivariate_normal([0, 0], f.cov[:2, :2], 200_000)
     assert np.mean(np.hypot(*err.T) <= f.position_sigma_m) == pytest.approx(1 - math.exp(-1), abs=0.005)
+
+
+def test_a_dem_search_as_wide_as_the_traverse_asks_is_not_refused():
+    """The traverse searches a leg-end fix on the DEM over up to 150 m (3 sigma); at the 2 m
+    first step that is 22,801 points, refused ('give a smaller --prior-radius-m', an option
+    traverse lacks). The step coarsens to keep within the limit; 100 m keeps 2 m."""
+    from conftest import shared_dem_path
+    from skyfix.dem import load_dem
+    from skyfix.pose import PoseConfig
+    from skyfix.pose.config import MAX_PRIOR_GRID_POINTS
+    from skyfix.pose.refine import prior_grid
+    from skyfix.traverse.measure import dem_search_config
+
+    dem = load_dem(shared_dem_path("south_glacier_20m"))
+    x0, y0, x1, y1 = dem.bounds
+    c = ((x0 + x1) / 2, (y0 + y1) / 2)
+    cfg = PoseConfig()
+    with pytest.raises(ParameterError, match="give a smaller"):
+        prior_grid(dem, c, 150.0, cfg.grid_step_m)
+    for r in (100.0, 150.0, TraverseConfig().max_fix_radius_m):
+        step = dem_search_config(cfg, r).grid_step_m
+        assert step == (cfg.grid_step_m if r <= 100.0 else pytest.approx(r / 50.0))
+        assert prior_grid(dem, c, r, step)[0].size <= MAX_PRIOR_GRID_POINTS

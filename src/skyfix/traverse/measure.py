@@ -72,11 +72,24 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
         f = locate(prof, db=use_db, dem=dem, prior_xy=None if x is None else (x, y),
                    prior_radius_m=radius_m, prior_pitch_deg=acq.prior_pitch_deg,
                    prior_roll_deg=acq.prior_roll_deg, camera_height_m=acq.camera_height_m,
-                   config=cfg)
+                   config=cfg if use_db is not None else dem_search_config(cfg, radius_m))
         return Measurement(f.grid_heading_deg, f.heading_sigma_deg, f.confidence, f.x, f.y,
                            f.features.get("position_sigma_basin_m", f.position_sigma_m))
 
     return Measure(heading, fix)
+
+
+def dem_search_config(cfg, radius_m):
+    """``cfg`` with a first grid step [m] coarse enough for a DEM search of ``radius_m`` [m]
+    to stay within MAX_PRIOR_GRID_POINTS (a 150 m disc at 2 m was refused): the refinement
+    that follows is as fine as ever."""
+    from dataclasses import replace
+
+    from ..pose.config import MAX_PRIOR_GRID_POINTS
+
+    half = (math.isqrt(MAX_PRIOR_GRID_POINTS) - 1) // 2  # grid steps from the centre to the edge
+    step = radius_m / half if radius_m else 0.0
+    return replace(cfg, grid_step_m=step) if step > cfg.grid_step_m else cfg
 
 
 def db_reaches(db, x, y, radius_m) -> bool:

@@ -58,7 +58,9 @@ OUTPUT = Kind(
             "detector": "--detector", "dem_sigma_m": "--dem-sigma-m",
             "leg_length_m": "the leg length (--leg-length-m, else traverse.json's)",
             "min_confidence": "--min-confidence", "max_rejections": "--max-rejections",
-            "format_version": "the record's version"})
+            "format_version": "the record's version",
+            "position_sigma": "what position_sigma_m means (radial since 2026-11-28, the worst "
+                              "axis's before)"})
 
 
 @dataclass(frozen=True)
@@ -273,7 +275,9 @@ def run_params(trav: Traverse, config: TraverseConfig, inputs: dict | None = Non
         "stops": list(trav.stops), "odometry_sha256": digest(odo),
         "start": None if trav.start is None else asdict(trav.start),
         "acquisitions_sha256": digest([_stop_identity(f) for f in trav.folders]),
-        **cfg, **(inputs or {})})
+        # the records' position_sigma_m, and the start's and the fixes' as read: an output
+        # written when they meant the worst axis is not resumed into radial lines
+        "position_sigma": "radial", **cfg, **(inputs or {})})
 
 
 def check_output(trav: Traverse, out_dir, *, config: TraverseConfig = TraverseConfig(),
