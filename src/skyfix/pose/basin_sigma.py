@@ -32,7 +32,7 @@ def wrong_basin_sigma(sigma: float, confidence: float, half_width: float,
     within a tolerance (1 deg), so a basin as wide as that could account for part of a low one
     (weight ``confidence / erf(tol / (sigma sqrt 2))``). Measured on single frames with map
     errors, that split covered 55 % and 76 % of the heading errors beyond 1 deg within 1 sigma
-    (seeds 0, 2), this one 91 % and 94 %: the basins' sigmas over-cover (86-91 % of all errors
+    (seeds 0, 2), this one 91 % and 88 %: the basins' sigmas over-cover (86-91 % of all errors
     within them), so a low confidence mostly means another basin."""
     if not (math.isfinite(sigma) and sigma >= 0.0):
         return float(sigma)

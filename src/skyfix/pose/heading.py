@@ -109,8 +109,8 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     (:func:`~skyfix.pose.basin_sigma.wrong_basin_sigma`): with probability 1 - confidence the
     heading is anywhere in the window and pitch and roll anywhere within PRIOR_TRUST_DEG of the
     inclinometer's prior. Single frames with map errors (``bench_single_frame.py``, seeds 0 and
-    2): the errors beyond the bars within 1 sigma, heading 55 -> 91 % and 71 -> 94 %, roll
-    31 -> 92 % and 44 -> 76 %; all errors, heading 86 -> 93 % and 91 -> 95 % (68 % claimed).
+    2): the errors beyond the bars within 1 sigma, heading 55 -> 91 % and 71 -> 88 %, roll
+    31 -> 92 % and 44 -> 76 %; all errors, heading 86 -> 93 % and 91 -> 94 % (68 % claimed).
     """
     from ..horizon import render_horizons
 
