@@ -202,8 +202,10 @@ def sigma_coverage_rows(results: list[CaseResult]) -> list[dict]:
     """One row per set (and 'all'): how often the reported 1-sigmas cover the errors. Position:
     the error beyond the simulated misregistration within 1 and 2 ``position_sigma_m`` (a radial
     sigma, the square root of the covariance's trace: 63 % and 98 % for a round Gaussian);
-    heading within 1 and 2 ``heading_sigma_deg`` (68 % and 95 %). Only located cases with a
-    finite sigma count (scenario 3 reports no position sigma)."""
+    heading within 1 and 2 ``heading_sigma_deg`` (68 % and 95 %). A sigma that allows for a wrong
+    basin (:mod:`skyfix.pose.basin_sigma`) claims the 1-sigma share only: at a low confidence
+    twice it holds less than a Gaussian's. Only located cases with a finite sigma count
+    (scenario 3 reports no position sigma)."""
     rows = []
     for s in sorted({r.set for r in results}) + ["all"]:
         ok = [r for r in results if (s == "all" or r.set == s) and r.status == "ok"]
