@@ -54,11 +54,7 @@ def wrong_basin_sigma(sigma: float, confidence: float, half_width: float,
         right = math.erf(r / (sigma * math.sqrt(2.0))) if sigma > 0 else 1.0
         return c * right + (1.0 - c) * wrong(r)
 
-    lo, hi = 0.0, sigma * 10.0 + w + d + 360.0
-    for _ in range(100):  # share() rises with r: bisection to well below 1e-9 deg
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if share(mid) < ONE_SIGMA_SHARE else (lo, mid)
-    return float(max(hi, sigma))
+    return max(_reach(share, ONE_SIGMA_SHARE, sigma), float(sigma))
 
 
 #: the share of a round normal's errors within its radial 1-sigma (the root of the trace)
@@ -81,14 +77,20 @@ def wrong_basin_radius(sigma_m: float, confidence: float, wrong_share) -> float:
         right = 1.0 - math.exp(-(r / sigma_m) ** 2) if sigma_m > 0 else 1.0
         return c * right + (1.0 - c) * wrong_share(r)
 
-    hi = max(sigma_m, 1.0)
-    while share(hi) < RADIAL_SIGMA_SHARE and hi < 1e9:
+    return max(_reach(share, RADIAL_SIGMA_SHARE, sigma_m), float(sigma_m))
+
+
+def _reach(share, level: float, start: float) -> float:
+    """The least ``r`` with ``share(r) >= level`` (``share`` rising in ``r``): doubled from
+    ``start`` until it holds (at most 1e9), then bisected to a part in 1e18."""
+    hi = max(start, 1.0)
+    while share(hi) < level and hi < 1e9:
         hi *= 2.0
     lo = 0.0
     for _ in range(60):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if share(mid) < RADIAL_SIGMA_SHARE else (lo, mid)
-    return float(max(hi, sigma_m))
+        lo, hi = (mid, hi) if share(mid) < level else (lo, mid)
+    return float(hi)
 
 
 def disc_share(cx: float, cy: float, radius_m: float, x: float, y: float):
