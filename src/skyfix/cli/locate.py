@@ -30,12 +30,11 @@ def _check_prior_area(db, dem, prior, radius_m) -> None:
     from ..workcrs import as_typed, lonlat_hint
 
     if db is not None:
-        xs, ys = np.asarray(db.x_coords), np.asarray(db.y_coords)
-        # on a rectangular grid the nearest position takes the nearest column and the nearest row
-        gx = xs[np.argmin(np.abs(xs - prior[0]))]
-        gy = ys[np.argmin(np.abs(ys - prior[1]))]
-        d = float(np.hypot(gx - prior[0], gy - prior[1]))
+        from ..database import nearest_position_m
+
+        d = nearest_position_m(db, prior[0], prior[1])
         if d > radius_m:
+            xs, ys = np.asarray(db.x_coords), np.asarray(db.y_coords)
             span = (xs.min(), ys.min(), xs.max(), ys.max())
             raise ParameterError(
                 f"no database position lies inside the prior area ({as_typed(prior[0])}, "

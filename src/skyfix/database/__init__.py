@@ -43,7 +43,7 @@ from .integrity import check_dem_crs, done_blocks
 from .layout import (BLOCK, DATA_ARRAYS, FORMAT, FORMAT_VERSION, MARKER_DIR, MAX_BUILD_BYTES,
                      MAX_POSITIONS, META_DIR, MISSING, SCALE_DEG, SKIP_TOL_DEG, Grid, dequantise,
                      marker_name, quantise, read_marker)
-from .store import Block, SkylineDatabase, open_database
+from .store import Block, SkylineDatabase, nearest_position_m, open_database
 from .verify import VerifyReport, describe, verify_database
 
 __all__ = ["BLOCK", "DATA_ARRAYS", "FORMAT", "FORMAT_VERSION", "MARKER_DIR", "MAX_BUILD_BYTES",
@@ -51,5 +51,6 @@ __all__ = ["BLOCK", "DATA_ARRAYS", "FORMAT", "FORMAT_VERSION", "MARKER_DIR", "MA
            "BuildResult", "Grid", "InProcessExecutor", "SkylineDatabase", "VerifyReport",
            "build_database", "build_params", "check_build_size", "check_dem_crs", "check_executor_options",
            "default_workers", "describe", "dequantise", "dir_size", "done_blocks",
-           "estimate_build_bytes", "make_executor", "marker_name", "open_database", "quantise",
+           "estimate_build_bytes", "make_executor", "marker_name", "nearest_position_m", "open_database",
+           "quantise",
            "read_marker", "render_block", "RENDERERS", "verify_database"]

@@ -363,6 +363,16 @@ class SkylineDatabase:
                 + (f", {len(self._absent)} without data)" if self._absent else ")"))
 
 
+def nearest_position_m(db, x: float, y: float) -> float:
+    """Distance [m] from (x, y) [m] to the nearest position of ``db``'s grid (anything with
+    ``x_coords`` and ``y_coords``): on a rectangular grid, the nearest column's and the nearest
+    row's."""
+    xs, ys = np.asarray(db.x_coords, float), np.asarray(db.y_coords, float)
+    gx = xs[np.argmin(np.abs(xs - x))]
+    gy = ys[np.argmin(np.abs(ys - y))]
+    return float(np.hypot(gx - x, gy - y))
+
+
 def open_database(path, *, allow_incomplete: bool = False) -> SkylineDatabase:
     """Open a skyline database read-only.
 

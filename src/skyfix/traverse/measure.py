@@ -23,6 +23,7 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
     :func:`skyfix.pose.estimate_heading` or :func:`skyfix.pose.locate` (with ``db`` when given,
     else on ``dem`` in the prior disc). ``pose_config``: the fixes' settings, its ``map_sigma_m``
     the DEM error the headings' sigmas allow for too."""
+    from ..database import nearest_position_m
     from ..formats import load_acquisition
     from ..pose import PoseConfig, estimate_heading, locate
     from ..pose.heading import HEADING_POSITION_SIGMA_M
@@ -65,7 +66,8 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
             raise SkyfixError("no start and no database: the first fix needs --db or a start "
                               "in traverse.json")
         # a prior disc the database does not reach is searched on the DEM, as without --db
-        use_db = db if x is None or db is None or db_reaches(db, x, y, radius_m) else None
+        use_db = db if x is None or db is None or nearest_position_m(db, x, y) <= radius_m \
+            else None
         if db is not None and use_db is None:
             log.info("stop %d: no database position within %.0f m of (%.1f, %.1f): the fix is "
                      "searched on the DEM", k, radius_m, x, y)
@@ -90,16 +92,3 @@ def dem_search_config(cfg, radius_m):
     half = (math.isqrt(MAX_PRIOR_GRID_POINTS) - 1) // 2  # grid steps from the centre to the edge
     step = radius_m / half if radius_m else 0.0
     return replace(cfg, grid_step_m=step) if step > cfg.grid_step_m else cfg
-
-
-def db_reaches(db, x, y, radius_m) -> bool:
-    """Whether any position of the database's grid lies within ``radius_m`` of (x, y) [m]."""
-    xs, ys = np.asarray(db.x_coords, float), np.asarray(db.y_coords, float)
-    return math.hypot(_nearest(xs, x) - x, _nearest(ys, y) - y) <= radius_m
-
-
-def _nearest(coords, v):
-    """The value of sorted-or-reversed ``coords`` nearest to ``v``."""
-    c = np.sort(coords)
-    i = int(np.clip(np.searchsorted(c, v), 1, c.size - 1)) if c.size > 1 else 0
-    return float(c[i] if c.size == 1 or abs(c[i] - v) < abs(c[i - 1] - v) else c[i - 1])
