@@ -61,6 +61,14 @@ class Update:
     innovation: tuple
 
 
+def fix_covariance(position_sigma_m, heading_sigma_deg) -> np.ndarray:
+    """The 3 x 3 covariance [m^2, deg^2] of a fix or a start given by its 1-sigmas: the position's
+    radial, as every position sigma skyfix reads or writes (the root of the trace: half its
+    square on each axis), the heading's [deg]."""
+    axis = float(position_sigma_m) ** 2 / 2.0
+    return np.diag([axis, axis, float(heading_sigma_deg) ** 2])
+
+
 class PoseFilter:
     """EKF on (x [m], y [m], heading [deg from grid north])."""
 
@@ -130,6 +138,5 @@ class PoseFilter:
         half of it on each axis); ``chi2`` as for a heading."""
         innov = np.array([float(x) - self.state[0], float(y) - self.state[1],
                           float(wrap_deg(heading_deg - self.state[2]))])
-        axis = position_sigma_m ** 2 / 2.0
-        r_mat = np.diag([axis, axis, heading_sigma_deg ** 2])
-        return self._update(np.eye(3), innov, r_mat, gate, chi2)
+        return self._update(np.eye(3), innov, fix_covariance(position_sigma_m, heading_sigma_deg),
+                            gate, chi2)

@@ -38,7 +38,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import SkyfixError
-from .ekf import CORROBORATION_CHI2, PoseFilter
+from .ekf import CORROBORATION_CHI2, PoseFilter, fix_covariance
 from .inputs import Traverse
 from .output import Kind, begin_folder, canonical, digest, plan_folder
 
@@ -334,9 +334,8 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
             s = trav.start
             if s is not None:
                 h = grid_heading_from_true(s.heading_deg, convergence(s.x, s.y))
-                # the start's position sigma is radial, as a fix's: half its square an axis
-                filt = PoseFilter(s.x, s.y, h, np.diag([s.position_sigma_m ** 2 / 2.0] * 2
-                                                         + [s.heading_sigma_deg ** 2]))
+                filt = PoseFilter(s.x, s.y, h, fix_covariance(s.position_sigma_m,
+                                                              s.heading_sigma_deg))
         else:
             filt.predict(trav.odometry[k - 1])
             driven += trav.odometry[k - 1].distance_m
@@ -352,9 +351,9 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
                 if measured.confidence < config.min_confidence:
                     raise SkyfixError(f"the first stop's fix has confidence {measured.confidence:.2f}: "
                                       "no start to go on from")
-                filt = PoseFilter(measured.x, measured.y, measured.heading_deg, np.diag(
-                    [max(measured.position_sigma_m, config.position_sigma_floor_m) ** 2 / 2.0] * 2
-                    + [max(measured.heading_sigma_deg, config.heading_sigma_floor_deg) ** 2]))
+                filt = PoseFilter(measured.x, measured.y, measured.heading_deg, fix_covariance(
+                    max(measured.position_sigma_m, config.position_sigma_floor_m),
+                    max(measured.heading_sigma_deg, config.heading_sigma_floor_deg)))
                 update, conf = "position", measured.confidence
             else:
                 if kind == "position":
