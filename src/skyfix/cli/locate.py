@@ -267,8 +267,9 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     # refused, after detection
     prof, pp, pr, cam_h = read_profile(acq, profile_path, frames, detector, db)
     if profile_path is not None and cam_h is None:
-        # as pose.locate takes it: the database's height, else 1.5 m
-        cam_h = float(getattr(db, "camera_height_m", None) or 1.5)
+        from ..pose.locate import default_camera_height_m
+
+        cam_h = default_camera_height_m(db, prof)  # as pose.locate would take it
         msg = (f"{profile_path} does not say the camera's height above the ground "
                f"(camera_height_m): taken as {cam_h:g} m"
                + (", the database's" if db is not None else "")

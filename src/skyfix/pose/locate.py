@@ -113,6 +113,12 @@ def degenerate_search(db, dem, x, y, prior_xy, prior_radius_m, tolerance_m, grid
     return reasons
 
 
+def default_camera_height_m(db, profile) -> float:
+    """The camera's height [m] above the DEM surface when none is given: the database's, else the
+    profile's (``meta['camera_height_m']``), else 1.5."""
+    return float(getattr(db, "camera_height_m", None) or profile.meta.get("camera_height_m", 1.5))
+
+
 def _searched_share(db, prior_xy, prior_radius_m, x, y):
     """``r -> `` the share of the searched area within ``r`` [m] of (x, y): the database's grid
     (each position standing for its cell), inside the prior disc where one was given."""
@@ -261,8 +267,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     if model is None:  # read once: the confidence and the sigma both use it
         model = load_confidence_model()
     if camera_height_m is None:
-        camera_height_m = float(getattr(db, "camera_height_m", None) or
-                                profile.meta.get("camera_height_m", 1.5))
+        camera_height_m = default_camera_height_m(db, profile)
     camera_height_m = float(camera_height_m)
     db_height = float(getattr(db, "camera_height_m", camera_height_m) or camera_height_m)
     height_gap = abs(camera_height_m - db_height) if db is not None else 0.0
