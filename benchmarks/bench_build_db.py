@@ -8,7 +8,10 @@ of the two is measured in the same run; the stores are compared bin by bin (raw 
 0.01 deg).
 
     PYTHONPATH=src python benchmarks/bench_build_db.py [--size-km 2] [--spacing-m 5] [--workers N]
-        [--renderers kernel,sweep]
+        [--renderers kernel,sweep] [--malloc-ab [--repeat N]]
+
+``--malloc-ab`` builds with the sweep under Dask's own malloc settings for its workers and under
+skyfix's (``skyfix.database.executors.WORKER_MALLOC``) in turn, ``--repeat`` times each.
 
 Timings on a shared machine are noisy: the load average is printed beside them.
 """
@@ -20,6 +23,7 @@ import os
 import shutil
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 DEM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dem" / "sierra_nevada_30m.tif"
@@ -34,6 +38,9 @@ def main():
     ap.add_argument("--workers", type=int, default=None, help="default: one per core (LocalCluster)")
     ap.add_argument("--keep", type=Path, default=None, help="keep the stores in this folder")
     ap.add_argument("--renderers", default="kernel,sweep", help="comma-separated, built in turn")
+    ap.add_argument("--malloc-ab", action="store_true",
+                    help="the sweep under Dask's malloc settings for its workers, then skyfix's")
+    ap.add_argument("--repeat", type=int, default=1, help="rounds of --malloc-ab")
     a = ap.parse_args()
     if not DEM.exists():
         print(f"skipped: {DEM} not found (expected ../shared/data beside the repo)")
@@ -47,16 +54,26 @@ def main():
     tmp = Path(tempfile.mkdtemp(prefix="bench_db_"))
     folder = a.keep or tmp
     rates = {}
+    arms = [(r, None) for r in a.renderers.split(",")]
+    if a.malloc_ab:
+        arms = [("sweep", m) for _ in range(a.repeat) for m in ("dask", "skyfix")]
     try:
-        for renderer in a.renderers.split(","):
+        for renderer, malloc in arms:
             out = folder / f"bench_{renderer}.zarr"
             load0 = os.getloadavg()[0]
-            c0 = _cpu_s()
+            c0, f0, s0 = _cpu_s(), _children_faults(), _system_s()
             t0 = time.perf_counter()
-            r = build_database(DEM, out, bounds, a.spacing_m, workers=a.workers, overwrite=True,
-                               progress=False, renderer=renderer)
+            with _worker_malloc(malloc):
+                r = build_database(DEM, out, bounds, a.spacing_m, workers=a.workers,
+                                   overwrite=True, progress=False, renderer=renderer)
             wall = time.perf_counter() - t0
-            cpu = _cpu_s() - c0
+            cpu, sys_s = _cpu_s() - c0, _system_s()
+            if malloc is not None:
+                print(f"--- sweep, the workers' malloc settings {malloc}'s: {wall:.1f} s wall, "
+                      f"CPU {cpu:.1f} s ({sys_s - s0:.1f} s of it in the kernel), minor page "
+                      f"faults of the workers {_children_faults() - f0:,}; load {load0:.1f} "
+                      f"before, {os.getloadavg()[0]:.1f} after")
+                continue
             elev = dir_size(out / "elevation")
             n = r.positions
             rate_tasks = r.skylines_per_s  # from the first task submitted to the last one finished
@@ -89,6 +106,31 @@ def _cpu_s() -> float:
     worker processes, once it is closed)."""
     t = os.times()
     return t.user + t.system + t.children_user + t.children_system
+
+
+def _system_s() -> float:
+    t = os.times()
+    return t.system + t.children_system
+
+
+def _children_faults() -> int:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_CHILDREN).ru_minflt
+
+
+@contextmanager
+def _worker_malloc(which: str | None):
+    """Dask's malloc settings for the workers ('dask') instead of skyfix's, for the A/B."""
+    from skyfix.database import executors
+
+    saved = executors.WORKER_MALLOC
+    if which == "dask":
+        executors.WORKER_MALLOC = {}
+    try:
+        yield
+    finally:
+        executors.WORKER_MALLOC = saved
 
 
 def compare(kernel, sweep) -> None:

@@ -240,6 +240,23 @@ def test_local_cluster_build_equals_in_process(dem_path, clean_db, tmp_path):
     assert dict(os.environ) == environ
 
 
+
+def _worker_env(_):
+    return {k: os.environ.get(k) for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_",
+                                           "OMP_NUM_THREADS")}
+
+
+def test_cluster_workers_keep_render_buffers_on_the_heap():
+    """The workers start with glibc's mmap threshold at 16 MiB, not Dask's 128 KiB (every render
+    buffer a fresh mapping); Dask's thread caps stay."""
+    from skyfix.database.executors import make_executor
+
+    with make_executor(workers=1) as (ex, slots, _):
+        env = ex.submit(_worker_env, 0).result()
+    assert slots == 1
+    assert env == {"MALLOC_MMAP_THRESHOLD_": str(16 << 20),
+                   "MALLOC_TRIM_THRESHOLD_": str(64 << 20), "OMP_NUM_THREADS": "1"}
+
 def test_killed_build_resumes_to_an_identical_store(dem_path, tmp_path):
     """kill -9 a real build mid-way, rerun the same command: byte-identical to a clean build."""
     out = tmp_path / "killed.zarr"

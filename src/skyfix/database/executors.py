@@ -71,6 +71,24 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+PRE_SPAWN = "distributed.nanny.pre-spawn-environ"
+
+#: glibc malloc settings for the embedded cluster's workers [bytes]. Dask's own
+#: (MALLOC_TRIM_THRESHOLD_ 64 KiB, to hand freed memory back at once) also fixes glibc's mmap
+#: threshold at 128 KiB, so every render buffer larger than that is a fresh mapping whose pages
+#: fault in anew: 2.1 M minor faults for a 2 x 2 km build, 11 % of its CPU in the kernel. Kept
+#: on the heap up to 16 MiB (the render buffers of a block) and trimmed beyond 64 MiB free, the
+#: faults fall tenfold (benchmarks/bench_build_db.py --malloc-ab).
+WORKER_MALLOC = {"MALLOC_MMAP_THRESHOLD_": str(16 << 20), "MALLOC_TRIM_THRESHOLD_": str(64 << 20)}
+
+
+def worker_environ() -> dict:
+    """The environment the embedded cluster's workers start with: Dask's, malloc settings ours."""
+    import dask
+
+    return {**(dask.config.get(PRE_SPAWN, default=None) or {}), **WORKER_MALLOC}
+
+
 @contextmanager
 def make_executor(workers: int | None = None, scheduler: str | None = None):
     """Yield ``(executor, slots, single_thread)`` for a build.
@@ -84,6 +102,7 @@ def make_executor(workers: int | None = None, scheduler: str | None = None):
     if scheduler is None and workers == 0:
         yield InProcessExecutor(), 1, False
         return
+    import dask
     from dask.distributed import Client, LocalCluster
 
     if scheduler is not None:
@@ -107,7 +126,7 @@ def make_executor(workers: int | None = None, scheduler: str | None = None):
     # environment, where every later child would inherit them: put the environment back after.
     environ = dict(os.environ)
     try:
-        with _sigint_ignored():
+        with _sigint_ignored(), dask.config.set({PRE_SPAWN: worker_environ()}):
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                    dashboard_address=None, silence_logs=logging.ERROR)
         with cluster, Client(cluster) as client:
