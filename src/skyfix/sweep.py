@@ -29,46 +29,14 @@ value it returns stays, as the kernel's, the maximum over true points of the pos
    understates it only where the position's skyline lies on terrain that neither bracketing line
    ranks highest (a knob between the lines, 100 m - 1 km away, that both pass beside).
 
-Against the per-point kernel (``benchmarks/bench_sweep.py``, every position and bin of 1 x 1 km at
-5 m on four DEMs, 2026-11-27): p99 0.0000 deg, 0.010-0.076 % of bins beyond 0.01 deg, max
-0.22-0.59 deg, 2.2-3.7x its rate (the kernel itself 13 % faster since its walk divides less).
-Where the time goes (one 256 x 256 task, one thread, since the exact spans walk from cell to
-cell): the position's own rays about 60 % (its near field alone 40 %), the lines' samples and
-hulls 25 %, setting up each azimuth (positions sorted into lines, outputs transposed) 10 %, the
-hull queries 5 %. The parameters' trade (near field and climb, Sierra): 60 m and no climb 3.2x the
-kernel with 0.048 % of bins beyond 0.01 deg (max 1.25); 100 m and a climb to 400 m (the defaults)
-2.5x, 0.013 % (max 0.62). A climb stopped two cells past its crest was 15-29 % faster on 1 x 1 km
-but saved no CPU on the 7 x 7 km build (459 against 461 s) and let more bins stray (0.0125 against
-0.0091 % beyond one step): not taken.
-Where the misses lie (Sierra, 1 x 1 km, 2026-11-27): of the 118 bins more than 0.1 deg under the
-kernel, 97 % have the kernel's skyline 100-600 m away, a knob the bracketing lines 2-5 m to the
-side see lower than a farther crest. Climbing every ray, not only a rising one, with the floor
-the windows give, out to 1 km: max 0.125 deg (2 bins beyond 0.1), CPU x1.43; to 3 km: max 0.027,
-CPU x1.9; to the DEM edge: the kernel's values, CPU x2.25, as dear as the kernel. Not taken: the
-build's rate is what the sweep is for, and p99 is 0 either way.
-On 2026-11-28 (same bench; CPU on 500 m, one thread, load 3.4-3.8): lines sample their concave
-pieces along the arc (``ARC_TOL_DEG``: the hull of crossings and crests lay up to a sagitta,
-metres on the Alps' 80 m cells, below a slope a sight line touches mid-piece), CPU x1.01-1.09;
-and each line also offers the tangent vertex's nearer neighbour and the first vertex more than
-two windows beyond it, when seen within ``ALT_DELTA_DEG`` and ``LATERAL_SLOPE`` x the line's
-offset x (1/d_t + 1/d_i) below it. Together: max 0.083 / 0.156 / 0.097 / 0.099 deg (Sierra,
-Alps, glacier, generated; before 0.271 / 0.467 / 0.352 / 0.329), <= 0.001 % of bins beyond
-0.01 deg (before 0.007-0.051 %), p99 0, CPU x1.13 / 1.19 / 1.13 / 1.13, the bench's rate 1.8-2.4x
-the kernel's at load 3.3-4.3 (2.1-2.9x at load 0.4-1.5 before); camera 30 m: max 0.163 / 0.029 /
-0.095 / 0.085. Tried: the nearest vertex within 0.5-1 deg at under half the tangent's distance
-(generated, 500 m: 100 -> 75 bins beyond 0.1 deg; most misses lie *beyond* the tangent); without
-the offset gate CPU x1.28; an absolute 0.05 deg arc tolerance x1.25 on the Alps; one scaled by the
-nearest query's distance x1.02 but made the samples depend on the other positions.
-Held out (2026-11-28, ``bench_sweep.py --offset``: blocks the thresholds were not chosen on,
-centred 0.3 / 0.5 of each DEM's half-extent from its middle, load 0.4-1.8): p99 <= 0.0006 deg on
-all 12 blocks (bar 0.01), beyond 0.01 deg in 0.000-0.053 % of bins (the Sierra's the most); max
-<= 0.1 deg on 9 of 12: Alps 0.149 and 0.322, glacier 0.142 (others 0.041-0.098); camera 30 m at
-0.3, -0.3: max 0.035-0.053 on all four. Twelve more blocks (0.2, 0.5 / -0.5, -0.2 / 0.0, -0.5;
-one thread): p99 <= 0.00085 deg, max <= 0.1 on 4 of 12 (0.102-0.350 on the others, 1-129 bins
-of 14.5 M each). The middle Sierra block itself, on the DEM kept whole (read since 2026-11-28),
-gives max 0.126 (1 bin), not 0.083. A longer exact near field (``near_m`` 150) fixed some blocks'
-worst bins and broke others' (4 -> 7 of those 12; the generated DEM's 0.068 -> 0.159), for the
-same CPU: not taken. The max bar is a handful of bins in millions, from several causes.
+Against the per-point kernel (``benchmarks/bench_sweep.py``: every position and bin of a 1 x 1 km
+block at 5 m, four DEMs, held-out blocks too; the figures and what was tried in
+``docs/results.md``, "Grid sweep vs the per-point kernel"): p99 under 0.001 deg, max 0.04-0.35 deg
+(a handful of bins in millions: knobs between the lines), 1.5-3.9x the kernel's rate. Where the
+time goes (one 256 x 256 task, one thread): the positions' own rays about 60 % (their near field
+alone 40 %), the lines' samples and hulls 25 %, setting up each azimuth (positions sorted into
+lines, outputs transposed) 10 %, the hull queries 5 %. The defaults (``NEAR_M``, ``RISING_M``,
+``ARC_TOL_DEG``, ``ALT_DELTA_DEG``, ``LATERAL_SLOPE``) trade those bins against that time.
 ``max_distance_m`` is not supported (a hull cannot forget terrain behind the limit); callers use
 the per-point kernel then.
 """
