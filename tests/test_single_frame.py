@@ -400,6 +400,26 @@ def test_a_position_may_lie_in_another_basin_of_the_searched_area():
         pytest.approx(2.0, rel=1e-6)
 
 
+
+def test_locate_heading_sigma_spreads_over_the_rival_basins_headings():
+    """Against a direct draw: the answer's heading (normal, sigma) with probability c, else one of
+    the rivals' (each as likely, normal about it); 68.3 % within the half-width returned. Rivals
+    that keep the answer's heading leave the sigma as it was."""
+    from skyfix.pose.basin_sigma import rival_heading_sigma
+
+    rng = np.random.default_rng(5)
+    n = 400_000
+    for sigma, c, rivals in ((0.8, 0.03, (3.3, -103.2, -103.3)), (0.3, 0.6, (0.1, 25.0)),
+                             (0.5, 0.9, (170.0, -175.0, 2.0, 0.0)), (1.0, 0.2, (-60.0,))):
+        right = rng.random(n) < c
+        pick = np.asarray(rivals)[rng.integers(0, len(rivals), n)]
+        err = np.where(right, 0.0, pick) + rng.normal(0, sigma, n)
+        s = rival_heading_sigma(sigma, c, rivals)
+        assert np.mean(np.abs(_angle(err)) <= s) == pytest.approx(math.erf(1 / math.sqrt(2)),
+                                                                  abs=0.003)
+    assert rival_heading_sigma(0.4, 0.5, ()) == 0.4  # no rival found: the basin's own
+    assert rival_heading_sigma(0.4, 0.2, (0.0, 0.05)) == pytest.approx(0.4, rel=0.01)
+
 def test_a_saved_profile_carries_the_camera_height_and_one_without_it_is_noted(dem_path,
                                                                                tmp_path):
     """``skyfix profile -o`` dropped the acquisition's camera height, so ``locate --profile`` and

@@ -57,6 +57,34 @@ def wrong_basin_sigma(sigma: float, confidence: float, half_width: float,
     return max(_reach(share, ONE_SIGMA_SHARE, sigma), float(sigma))
 
 
+def rival_heading_sigma(sigma: float, confidence: float, rival_offsets_deg) -> float:
+    """The 1-sigma [deg] of a heading that is, with probability ``confidence``, the answer's with
+    a normal error of ``sigma`` [deg], and otherwise the heading of one of the rival basins,
+    ``rival_offsets_deg`` [deg] from the answer, each as likely (a normal of ``sigma`` about it):
+    the half-width that holds the error with the probability a normal 1-sigma holds it
+    (:data:`ONE_SIGMA_SHARE`).
+
+    For ``locate``, whose answer is a position and a heading together: a rival position over a
+    full turn mostly keeps the answer's heading (map errors moved the fix metres but not the
+    heading), and the sigma then hardly widens; a narrow arc's rivals can face anywhere (a
+    7.5 deg arc's fix 103 deg off came with 0.81 deg at confidence 0.03, its rivals at +3 and
+    -103 deg). Without rivals, ``sigma``: nothing else was found in what was searched."""
+    offs = [abs((float(o) + 180.0) % 360.0 - 180.0) for o in rival_offsets_deg]
+    offs = [o for o in offs if math.isfinite(o)]
+    if not (math.isfinite(sigma) and sigma >= 0.0) or not offs:
+        return float(sigma)
+    c = min(max(float(confidence), 0.0), 1.0) if math.isfinite(confidence) else 0.0
+    sd = max(float(sigma), 1e-9) * math.sqrt(2.0)
+
+    def within(r, o):  # P(|e| <= r) for e normal about o (the circle's wrap is beyond 1-sigma)
+        return 0.5 * (math.erf((r - o) / sd) + math.erf((r + o) / sd))
+
+    def share(r):
+        return c * within(r, 0.0) + (1.0 - c) * sum(within(r, o) for o in offs) / len(offs)
+
+    return max(min(_reach(share, ONE_SIGMA_SHARE, sigma), 180.0), float(sigma))
+
+
 #: the share of a round normal's errors within its radial 1-sigma (the root of the trace)
 RADIAL_SIGMA_SHARE = 1.0 - math.exp(-1.0)
 

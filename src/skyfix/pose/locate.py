@@ -37,7 +37,7 @@ from ..errors import ParameterError, SkyfixError
 from ..match import match_database, prepare_query, tilt_determinable
 from ..north import heading_360, meridian_convergence_deg, true_heading_deg, wrap_deg
 from ..progress import stage
-from .basin_sigma import disc_share, rect_share, wrong_basin_radius
+from .basin_sigma import disc_share, rect_share, rival_heading_sigma, wrong_basin_radius
 from .confidence import (calibrated_sigma, confidence_features, confidence_from_features,
                          load_confidence_model, position_sigma, residual_correlation_bins,
                          structureless_cap)
@@ -321,13 +321,14 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     if not cands:
         raise SkyfixError("no candidate position found: the database holds no usable skyline")
     relief = float(np.nanstd(q))
+    # "Another basin" is another answer beyond the tolerance. Without a database the answer is
+    # judged at scenario 2's tolerance (1 m), not 5 m.
+    sep = config.tolerance_m if db is not None else 1.0
     if dem is not None:
         kw = dict(camera_height_m=camera_height_m, planet=planet, prior_pitch_deg=prior_pitch_deg,
                   prior_roll_deg=prior_roll_deg, noise=noise)
-        # "Another basin" is another answer beyond the tolerance: refined candidates often
-        # converge onto the best one, and comparing with a copy of itself said nothing.
-        # Without a database the answer is judged at scenario 2's tolerance (1 m), not 5 m.
-        sep = config.tolerance_m if db is not None else 1.0
+        # Refined candidates often converge onto the best one, and comparing with a copy of
+        # itself said nothing.
         kw["join_m"] = sep
         k = min(len(cands), config.refine_candidates)
         with stage(f"  {k} candidate{'s' * (k != 1)} refined on the DEM") as st:
@@ -418,6 +419,14 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         notes.append(f"the position may lie in another basin of the searched area (a chance of "
                      f"{1.0 - basin_conf:.2f}), and position_sigma_m allows for that (the fit's "
                      f"own is {basin:.2f} m; the candidates list the rivals)")
+    # the heading as the position: the basin's own sigma, then the rivals' headings by their chance
+    feat["heading_sigma_basin_deg"] = hsig
+    rivals = [wrap_deg(c["heading_deg"] - heading) for c in cand_out
+              if math.hypot(c["x"] - fx, c["y"] - fy) > sep]
+    basin_h, hsig = hsig, rival_heading_sigma(hsig, basin_conf, rivals)
+    if hsig > 2.0 * basin_h:
+        notes.append(f"the rival basins face other ways (a chance of {1.0 - basin_conf:.2f}), "
+                     f"and heading_sigma_deg allows for that (the fit's own is {basin_h:.2f} deg)")
     notes += prior_disagreement(pitch, roll, prior_pitch_deg, prior_roll_deg)
     if dem is None:
         notes.append("pitch_deg and roll_deg are the attitude prior echoed (no --dem to estimate "

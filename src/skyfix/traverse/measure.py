@@ -75,7 +75,10 @@ def acquisition_measure(trav, dem, *, db=None, pose_config=None, detector=None) 
                    prior_radius_m=radius_m, prior_pitch_deg=acq.prior_pitch_deg,
                    prior_roll_deg=acq.prior_roll_deg, camera_height_m=acq.camera_height_m,
                    config=cfg if use_db is not None else dem_search_config(cfg, radius_m))
-        return Measurement(f.grid_heading_deg, f.heading_sigma_deg, f.confidence, f.x, f.y,
+        # the basins' own sigmas, as for a heading: the track settles which basin
+        return Measurement(f.grid_heading_deg,
+                           f.features.get("heading_sigma_basin_deg", f.heading_sigma_deg),
+                           f.confidence, f.x, f.y,
                            f.features.get("position_sigma_basin_m", f.position_sigma_m))
 
     return Measure(heading, fix)
