@@ -359,7 +359,28 @@ def test_impossible_acquisition_values_name_the_field(tmp_path, changes, field):
     {"simulation": {"seed": 3}, "mission": "MSL"},  # a producer's own top-level fields
 ])
 def test_plausible_acquisitions_still_load(tmp_path, changes):
-    load_acquisition(write_acq(tmp_path / "acq", **changes))
+    """... and load as written: every changed field holds its value, the rest the default's."""
+    a = load_acquisition(write_acq(tmp_path / "acq", **changes))
+    prior = changes.get("attitude_prior") or {"pitch_deg": 0.0, "roll_deg": 0.0}
+    assert (a.prior_pitch_deg, a.prior_roll_deg) == (prior["pitch_deg"], prior["roll_deg"])
+    assert a.camera_height_m == changes.get("camera_height_m", 1.5)
+    pano = {k[len("pano__"):]: v for k, v in changes.items() if k.startswith("pano__")}
+    if pano:
+        assert a.panorama is not None and not a.frames
+        for k, v in pano.items():
+            assert getattr(a.panorama, k) == v
+        return
+    frame = {"pan_deg": 0.0, "tilt_deg": 0.0}
+    frame.update({k[len("frame__"):]: v for k, v in changes.items() if k.startswith("frame__")})
+    assert [(f.image, f.pan_deg, f.tilt_deg) for f in a.frames] == \
+        [("f.png", frame["pan_deg"], frame["tilt_deg"])]
+    cam = {"fx": 1236.0, "fy": 1236.0, "cx": 511.5, "cy": 511.5}
+    cam.update({k[len("camera__"):]: v for k, v in changes.items()
+                if k.startswith("camera__") and not k.startswith("camera__dist__")})
+    assert {k: getattr(a.camera, k) for k in cam} == cam
+    for k, v in changes.items():
+        if k.startswith("camera__dist__"):
+            assert getattr(a.camera.distortion, k[len("camera__dist__"):]) == v
 
 
 @pytest.mark.parametrize("changes, name", [

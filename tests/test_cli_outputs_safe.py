@@ -182,13 +182,17 @@ def test_simulate_set_overwrite_with_a_bad_option_keeps_the_old_set(dem, old_acq
 def test_simulate_set_failing_midway_keeps_the_old_set(dem, old_acq, monkeypatch):
     import skyfix.simulate.acquisition as sim
 
+    called = []
+
     def crash(*a, **k):
+        called.append(1)
         raise KeyboardInterrupt
 
     monkeypatch.setattr(sim, "_render_one", crash)
     before = snapshot(old_acq)
-    run("simulate-set", dem, "--set", "REF", "--cases", 2, "--frames", 1, "--camera", "wide",
-        "--out", old_acq, "--overwrite")
+    r = run("simulate-set", dem, "--set", "REF", "--cases", 2, "--frames", 1, "--camera", "wide",
+            "--out", old_acq, "--overwrite")
+    assert called and r.exit_code == 130, r.output  # it did fail midway, while rendering
     assert snapshot(old_acq) == before
     assert leftovers(old_acq) == []
 

@@ -110,9 +110,11 @@ def test_evaluate_traverse_renders_its_stops_from_a_world_that_is_not_the_map(tm
     # a world 2 m rms off the map in height still gives right headings wherever one is taken
     rows = [json.loads(line) for line in (out / "result" / "stops.jsonl").read_text().splitlines()]
     truth = [json.loads(line) for line in (out / "traverse" / "truth.jsonl").read_text().splitlines()]
-    for r_, t in zip(rows, truth):
-        if r_["update"] in ("heading", "position"):
-            assert abs((r_["heading_deg"] - t["heading_deg"] + 180) % 360 - 180) < 1.0
+    assert len(rows) == len(truth) == 2
+    taken = [(r_, t) for r_, t in zip(rows, truth) if r_["update"] in ("heading", "position")]
+    assert taken
+    for r_, t in taken:
+        assert abs((r_["heading_deg"] - t["heading_deg"] + 180) % 360 - 180) < 1.0
     # a rerun without it is another simulation, refused by name (not resumed as the same)
     r = run("evaluate", "--dem", dem, "--scenario", "traverse", "--length-m", 50,
             "--stop-spacing-m", 50, "--seed", 5, "-o", out)

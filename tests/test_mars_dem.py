@@ -85,9 +85,19 @@ def test_mars_maps_become_true_distances_on_mars(tmp_path, terrain, kind):
 
 
 def test_mars_curvature_without_being_told(tmp_path, terrain):
-    geo, _ = _mars_files(tmp_path, terrain.z)
+    """A flat plane on a Mars CRS: every bin dips as Mars's curvature says, closed form, at the
+    distance its skyline lies (the edge, 2-2.8 km: nearer than where the dip is deepest, sqrt(h/c)
+    = 3.2 km), which Earth's curvature or a flat planet would not give."""
+    from skyfix.planets import EARTH
+
+    geo, _ = _mars_files(tmp_path, np.zeros_like(terrain.z))
     hb = render_horizons(load_dem(geo), [0.0], [0.0])
     assert hb.planet is MARS
+    e, d, h = hb.elevation_deg[0], hb.skyline_distance_m[0], hb.camera_height_m
+    assert np.isfinite(e).all() and 1500.0 < d.min() and d.max() < 3000.0
+    dip = np.degrees(np.arctan(-h / d - MARS.curvature_coeff * d))
+    assert np.abs(e - dip).max() < 1e-4
+    assert np.abs(e - np.degrees(np.arctan(-h / d - EARTH.curvature_coeff * d))).min() > 0.005
 
 
 def test_a_planet_contradicting_a_mars_crs_is_refused(tmp_path, terrain):

@@ -101,6 +101,7 @@ def test_candidates_are_in_distinct_basins(store):
     q = st.profiles_at(600.0, 500.0)[0].astype(float)
     res = match_database(st, q, MatchConfig(coarse_factor=1, top_k=4, nms_radius_m=60.0))
     pts = [(c.x, c.y) for c in res.candidates]
+    assert len(pts) == 4  # a 400 m square of bumps holds four basins 60 m apart and more
     for i in range(len(pts)):
         for j in range(i):
             assert max(abs(pts[i][0] - pts[j][0]), abs(pts[i][1] - pts[j][1])) > 60.0
@@ -112,6 +113,11 @@ def test_prior_disc_restricts_the_search(store):
     q = st.profiles_at(600.0, 500.0)[0].astype(float)
     res = match_database(st, q, MatchConfig(coarse_factor=1), prior_xy=(440.0, 760.0),
                          prior_radius_m=50.0)
+    # the grid's nodes within 50 m of (440, 760), counted directly: every one scored, no other
+    gx, gy = np.meshgrid(np.arange(400.0, 800.1, 20.0), np.arange(800.0, 399.9, -20.0))
+    inside = np.hypot(gx - 440.0, gy - 760.0) <= 50.0
+    assert res.n_positions == inside.sum() == 21
+    assert res.candidates
     for c in res.candidates:
         assert np.hypot(c.x - 440.0, c.y - 760.0) <= 50.0
 
