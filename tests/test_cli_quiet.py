@@ -79,6 +79,13 @@ def test_quiet_silences_opencv_already_loaded(geotiff_image, tmp_path, capfd, mo
     level = cv2.utils.logging.getLogLevel()
     monkeypatch.delenv("OPENCV_LOG_LEVEL", raising=False)  # put back after the test
     try:
+        # the control: loud, OpenCV warns on this GeoTIFF's tags (an earlier -q in this process
+        # must not make the test below pass for nothing)
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_WARNING)
+        capfd.readouterr()
+        r = CliRunner().invoke(cli, ["detect", str(geotiff_image), "-o", str(tmp_path / "l.json")])
+        assert r.exit_code == 0, r.output
+        assert "WARN" in capfd.readouterr().err
         r = CliRunner().invoke(cli, ["-q", "detect", str(geotiff_image), "-o", str(tmp_path / "s.json")])
         assert r.exit_code == 0, r.output
         assert "WARN" not in capfd.readouterr().err
