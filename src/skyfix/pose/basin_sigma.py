@@ -36,7 +36,7 @@ def wrong_basin_sigma(sigma: float, confidence: float, half_width: float,
     within them), so a low confidence mostly means another basin."""
     if not (math.isfinite(sigma) and sigma >= 0.0):
         return float(sigma)
-    c = min(max(float(confidence), 0.0), 1.0) if math.isfinite(confidence) else 0.0
+    c = _weight(confidence)
     w = float(half_width)
     d = abs(float(offset))
 
@@ -73,7 +73,7 @@ def rival_heading_sigma(sigma: float, confidence: float, rival_offsets_deg) -> f
     offs = [o for o in offs if math.isfinite(o)]
     if not (math.isfinite(sigma) and sigma >= 0.0) or not offs:
         return float(sigma)
-    c = min(max(float(confidence), 0.0), 1.0) if math.isfinite(confidence) else 0.0
+    c = _weight(confidence)
     sd = max(float(sigma), 1e-9) * math.sqrt(2.0)
 
     def within(r, o):  # P(|e| <= r) for e normal about o (the circle's wrap is beyond 1-sigma)
@@ -99,13 +99,18 @@ def wrong_basin_radius(sigma_m: float, confidence: float, wrong_share) -> float:
     the confidence taken as the basin's weight whole."""
     if not (math.isfinite(sigma_m) and sigma_m >= 0.0):
         return float(sigma_m)
-    c = min(max(float(confidence), 0.0), 1.0) if math.isfinite(confidence) else 0.0
+    c = _weight(confidence)
 
     def share(r):
         right = 1.0 - math.exp(-(r / sigma_m) ** 2) if sigma_m > 0 else 1.0
         return c * right + (1.0 - c) * wrong_share(r)
 
     return max(_reach(share, RADIAL_SIGMA_SHARE, sigma_m), float(sigma_m))
+
+
+def _weight(confidence: float) -> float:
+    """The right basin's weight: the confidence within [0, 1], 0 where it is not a number."""
+    return min(max(float(confidence), 0.0), 1.0) if math.isfinite(confidence) else 0.0
 
 
 def _reach(share, level: float, start: float) -> float:

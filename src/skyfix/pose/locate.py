@@ -400,8 +400,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     # what the confidence says of the basin: the caps below speak of the searched area (the
     # rover may lie outside it), not of another basin inside it
     basin_conf = conf
-    degenerate = degenerate_search(db, dem, fx, fy, prior_xy, prior_radius_m,
-                                   config.tolerance_m if db is not None else 1.0,
+    degenerate = degenerate_search(db, dem, fx, fy, prior_xy, prior_radius_m, sep,
                                    config.grid_step_m)
     if degenerate:
         conf = min(conf, DEGENERATE_CAP)
