@@ -729,7 +729,11 @@ def test_cli_simulate(dem_file, tmp_path):
                                  "--out", str(out)])
     assert r.exit_code == 0, r.output
     assert load_truth(out) == Truth(900.0, 800.0, 30.0)
-    assert (out / "frame_000.skyline.json").is_file()
+    rows = np.array(json.loads((out / "frame_000.skyline.json").read_text())["rows"], float)
+    # the summary counts the truth skyline's columns, and says what it wrote
+    assert (f"{out}: 1 frame, 1024 x 1024 px, seen from (900.0, 800.0) at yaw 30.0 deg"
+            in r.output), r.output
+    assert f"the terrain skyline in {np.isfinite(rows).sum():,} of 1,024 columns" in r.output
     r = CliRunner().invoke(cli, ["simulate", str(dem_file), "--x", "900", "--y", "800", "--yaw-deg", "30",
                                  "--out", str(out)])
     assert r.exit_code == 2 and "--overwrite" in r.output

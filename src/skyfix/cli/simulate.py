@@ -96,7 +96,7 @@ def simulate(dem, x, y, yaw_deg, pitch_deg, roll_deg, camera_height_m, mode, cam
             pan_start_deg=pan_start_deg, pan_step_deg=pan_step_deg, tilt_deg=tilt_deg,
             camera_height_m=camera_height_m, planet=planet, conditions=cond, seed=seed,
             overwrite=overwrite, attitude_prior=prior, pano_size=pano_size)
-    click.echo(str(path))
+    click.echo(acquisition_summary(path))
 
 
 @click.command("simulate-set")
@@ -164,6 +164,39 @@ def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, 
                           progress=bars_shown(),
                           map_errors=MapErrors() if map_errors else None, world=world)
     click.echo(f"{len(folders)} case{'s' * (len(folders) != 1)} in {out}")
+
+
+def acquisition_summary(folder) -> str:
+    """One line on what ``simulate`` wrote in ``folder``, read back from its acquisition.json: the
+    images, the pose, and in how many image columns the terrain skyline is there to be found (a
+    frame tilted too low, or facing a slope that fills it, holds none)."""
+    import json
+    from pathlib import Path
+
+    acq = json.loads((Path(folder) / "acquisition.json").read_text())
+    t, sim = acq["truth"], acq["simulation"]
+    images = sim["images"]
+    n = len(images)
+    # the widths from the truth skylines beside the images (acquisition.json gives a panorama's
+    # field of view, not its pixels)
+    widths = [json.loads((Path(folder) / (Path(i["image"]).stem + ".skyline.json")).read_text())
+              ["width"] for i in images]
+    if "panorama" in acq:
+        what = f"a panorama {widths[0]} px wide"
+    else:
+        c = acq["camera"]
+        what = f"{n} frame{'s' * (n != 1)}, {c['width']} x {c['height']} px"
+    found = sum(i["terrain_skyline_columns"] for i in images)
+    ground = sum(b - a for i in images for a, b in i["ground_only_columns"])
+    sky = sum(b - a for i in images for a, b in i["sky_only_columns"])
+    cols = sum(widths)
+    return (f"{folder}: {what}, seen from ({t['x']:.1f}, {t['y']:.1f}) at yaw {t['yaw_deg']:.1f} "
+            f"deg, pitch {t['pitch_deg']:.1f}, roll {t['roll_deg']:.1f}, the camera "
+            f"{acq['camera_height_m']:g} m above the ground at {sim['ground_z_m']:.1f} m; the "
+            f"terrain skyline in {found:,} of {cols:,} columns ({100 * found / cols:.0f} %; ground "
+            f"only {ground:,}, sky only {sky:,}); the truth in acquisition.json"
+            + ("" if found else ": no image shows a skyline to fix from (tilt the camera up, "
+               "--tilt-deg, or move it)"))
 
 
 def _check_out(out, overwrite: bool, dem=None) -> None:
