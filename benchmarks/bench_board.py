@@ -10,12 +10,14 @@ memory (sampled from /proc every 20 ms), killed or not, position and heading err
 the limited/free time ratio; and the load average.
 
     python benchmarks/bench_board.py --db DB --dem DEM [--cases 3] [--limit-mb 256] [--cpu 0]
-        [--work DIR] [--board-python PATH]
+        [--work DIR] [--board-python PATH] [--detectors dp,fuse]
 
 ``--board-python`` runs the board commands with another environment's Python: a board install
 (``pip install skyfix``, no extras), as a rover carries it. The acquisitions are simulated here,
 which needs the ground install this script runs in. Measured in the ground install, the board
 commands carry what its extras drag in (numba loads SciPy's BLAS where SciPy is installed).
+``--detectors dp,fuse`` runs every command with each detector in turn, side by side in one run
+(the time and memory the learned network adds on the board, on the same acquisitions).
 
 The requirement's database is the README's 7 x 7 km at 5 m over the Sierra DEM:
 ``skyfix build-db ../shared/data/dem/sierra_nevada_30m.tif -o DB --bounds 297800 4143100
@@ -150,7 +152,14 @@ def main(argv=None):
     ap.add_argument("--work", default="/tmp/skyfix_bench_board")
     ap.add_argument("--board-python", default=sys.executable,
                     help="the Python of the install that runs the board commands")
+    ap.add_argument("--detectors", default="dp",
+                    help="comma-separated detection methods, each run in turn (e.g. dp,fuse)")
     args = ap.parse_args(argv)
+    detectors = [d.strip() for d in args.detectors.split(",") if d.strip()]
+    unknown = sorted(set(detectors) - {"dp", "bayes", "net", "fuse"})
+    if unknown or not detectors:
+        ap.error(f"--detectors: unknown {', '.join(unknown) or '(none given)'}; choose among dp, "
+                 "bayes, net, fuse")
     from skyfix.database import open_database
     from skyfix.dem import load_dem
     from skyfix.north import meridian_convergence_deg, true_heading_deg
@@ -169,9 +178,10 @@ def main(argv=None):
     print(f"board commands run by {args.board_python}; kernels "
           f"{'compiled ahead of time (numba not loaded)' if aot else 'by numba JIT (cached)'}",
           flush=True)
-    print(f"{'case':30s} {'command':8s} {'limit':6s} {'wall s':>7s} {'cpu s':>6s} {'RSS MB':>7s} "
+    print(f"{'case':30s} {'command':8s} {'detect':6s} {'limit':6s} {'wall s':>7s} {'cpu s':>6s} {'RSS MB':>7s} "
           f"{'anon MB':>7s} {'killed':>6s} {'pos m':>7s} {'head deg':>8s} {'conf':>5s}")
     ratios = []
+    cpu_by = {d: {} for d in detectors}  # detector -> (case, command) -> free run's CPU [s]
     try:
         for name, folder, truth in cases:
             conv = meridian_convergence_deg(dem.crs_wkt, truth.x, truth.y)
@@ -185,7 +195,8 @@ def main(argv=None):
                             "--y", f"{hy:.2f}", "--heading-prior-deg", f"{(true_h + 5) % 360:.2f}",
                             "-o", str(work / "heading.json"), "--overwrite"],
             }
-            for cname, cmd in cmds.items():
+            for (cname, cmd), det in ((c, d) for c in cmds.items() for d in detectors):
+                cmd = [*cmd, "--detector", det]
                 walls = {}
                 for lim in ("free", "limit"):
                     if lim == "limit" and cg is None:
@@ -194,6 +205,8 @@ def main(argv=None):
                     r = _run(cmd, cg if lim == "limit" else None, args.cpu, env)
                     cpu = _children_cpu() - c0
                     walls[lim] = r["wall_s"]
+                    if lim == "free":
+                        cpu_by[det][(name, cname)] = cpu
                     pos = head = conf = float("nan")
                     if r["rc"] == 0:
                         res = json.loads((work / ("fix.json" if cname == "locate" else "heading.json")).read_text())
@@ -202,7 +215,7 @@ def main(argv=None):
                         conf = res["confidence"]
                     elif not r["killed"]:
                         print(f"   {cname} failed: {r['stderr'].strip()[-300:]}")
-                    print(f"{name[:30]:30s} {cname:8s} {lim:6s} {r['wall_s']:7.1f} {cpu:6.1f} "
+                    print(f"{name[:30]:30s} {cname:8s} {det:6s} {lim:6s} {r['wall_s']:7.1f} {cpu:6.1f} "
                           f"{r['peak_rss_mb']:7.0f} {r['peak_anon_mb']:7.0f} {str(r['killed']):>6s} "
                           f"{pos:7.2f} {head:8.3f} {conf:5.2f}", flush=True)
                 if "limit" in walls:
@@ -216,6 +229,13 @@ def main(argv=None):
     if ratios:
         print(f"limited / free wall time: median {np.median(ratios):.2f}, worst {max(ratios):.2f} "
               f"(target <= 1.25)")
+    for det in detectors[1:]:
+        for cname in ("locate", "heading"):
+            pairs = [(cpu_by[det][k], cpu_by[detectors[0]][k]) for k in cpu_by[det]
+                     if k[1] == cname and k in cpu_by[detectors[0]]]
+            if pairs:
+                print(f"{cname} CPU, {det} / {detectors[0]} (free runs): " + ", ".join(
+                    f"{a / b:.2f}" for a, b in pairs) + f" (median {np.median([a / b for a, b in pairs]):.2f})")
     print(f"load average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     shutil.rmtree(work / "tmp", ignore_errors=True)
 
