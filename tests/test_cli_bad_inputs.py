@@ -921,3 +921,24 @@ def test_acquisition_init_needs_the_tilt_and_warns_of_a_view_given_in_radians(tm
             "--camera-height-m", 1.5, "--tilt-deg", 10, "--overwrite")
     assert r.exit_code == 0 and "warning" not in r.output
     assert [f.tilt_deg for f in load_acquisition(tmp_path).frames] == [10.0] * 3
+
+
+def test_a_refused_acquisition_init_overwrite_keeps_the_file_that_was_there(tmp_path):
+    """--overwrite replaced acquisition.json, then deleted it when the new one failed its checks
+    (a focal length in mm, images of two sizes): a hand-edited acquisition lost. The new one is
+    now checked before anything is written."""
+    import cv2
+
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"f{k}.png"), np.full((48, 64, 3), 120, np.uint8))
+    good = ("--hfov-deg", 45, "--pan-step-deg", 30, "--camera-height-m", 1.5, "--tilt-deg", 10)
+    assert run("acquisition-init", tmp_path, *good).exit_code == 0
+    before = (tmp_path / "acquisition.json").read_bytes()
+    r = run("acquisition-init", tmp_path, "--focal-px", 0.035, "--pan-step-deg", 30,
+            "--camera-height-m", 1.5, "--tilt-deg", 0, "--overwrite")
+    assert_clean_error(r, "focal")
+    assert (tmp_path / "acquisition.json").read_bytes() == before
+    cv2.imwrite(str(tmp_path / "f3.png"), np.full((40, 64, 3), 120, np.uint8))
+    r = run("acquisition-init", tmp_path, *good, "--overwrite")
+    assert_clean_error(r, "is not a 64 x 48 image like f0.png")
+    assert (tmp_path / "acquisition.json").read_bytes() == before

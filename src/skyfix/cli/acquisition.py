@@ -74,7 +74,7 @@ def acquisition_init(folder, images, hfov_deg, focal_px, pan_deg, pan_step_deg, 
 
     from .._io import check_can_write
     from ..camera import Camera, Distortion
-    from ..formats import ACQUISITION_FILE, Acquisition, Frame, load_acquisition, save_acquisition
+    from ..formats import ACQUISITION_FILE, Acquisition, Frame, acquisition_from_dict, save_acquisition
 
     root = Path(folder)
     names = sorted(p.name for p in root.glob(images) if p.is_file())
@@ -123,18 +123,14 @@ def acquisition_init(folder, images, hfov_deg, focal_px, pan_deg, pan_step_deg, 
     acq = Acquisition(root=root, camera=cam, camera_height_m=camera_height_m,
                       frames=tuple(Frame(n, p, tilt_deg) for n, p in zip(names, pans)),
                       prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
-    path = save_acquisition(root, acq)
-    try:
-        back = load_acquisition(root)  # the localiser's own reader: every field checked
-    except Exception:
-        path.unlink()
-        raise
+    # checked before it is written: a refused --overwrite leaves the file that was there
+    back = acquisition_from_dict(acq.to_dict(), root)  # the localiser's own checks, every field
     for f in back.frames:
         im = imread_whole(root / f.image, cv2.IMREAD_UNCHANGED)
         if im is None or im.shape[:2] != (h, w):
-            path.unlink()
             raise ParameterError(f"{f.image} is not a {w} x {h} image like {names[0]}: one camera, "
                                  "one image size")
+    path = save_acquisition(root, acq)
     click.echo(f"wrote {path}: {len(names)} images of {w} x {h} px, focal {focal_px:.1f} px "
                f"(horizontal field of view {hfov:.1f} deg), "
                f"pans {pans[0]:g} .. {pans[-1]:g} deg, tilt {tilt_deg:g} deg, camera "

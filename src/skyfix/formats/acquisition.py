@@ -232,7 +232,14 @@ def load_acquisition(folder) -> Acquisition:
     root = Path(folder)
     if not root.is_dir():
         raise AcquisitionError(f"acquisition folder {root} does not exist or is not a folder")
-    data = _read_json(root / ACQUISITION_FILE)
+    return acquisition_from_dict(_read_json(root / ACQUISITION_FILE), root)
+
+
+def acquisition_from_dict(data: dict, root) -> Acquisition:
+    """:func:`load_acquisition`'s checks on ``acquisition.json``'s content ``data``, its images
+    looked for in folder ``root``: a writer checks what it will write before it replaces a file
+    (``skyfix acquisition-init --overwrite``). Raises :class:`AcquisitionError`."""
+    root = Path(root)
     # a misspelt top-level field ('attitude_priors') would be lost and its default taken; any
     # other is the producer's own (the simulator's 'simulation'), kept as it is, unwarned
     known_fields(data, TOP_FIELDS, "acquisition.json", warn=False)
