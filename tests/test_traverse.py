@@ -54,8 +54,30 @@ def test_an_update_near_360_wraps_and_shrinks_the_variance():
     filt = PoseFilter(0.0, 0.0, 359.5, np.diag([1.0, 1.0, 4.0]))
     u = filt.update_heading(0.5, 2.0)  # 1 deg of innovation, not 359
     assert u.accepted and u.innovation[0] == pytest.approx(1.0)
-    assert filt.state[2] == pytest.approx(0.0, abs=1e-9) or filt.state[2] == pytest.approx(360.0)
+    assert filt.state[2] == pytest.approx(0.0, abs=1e-9)
     assert filt.cov[2, 2] == pytest.approx(2.0)  # 1 / (1/4 + 1/4)
+
+
+def test_headings_stay_in_0_360_and_a_crs_without_true_north_says_so():
+    """A heading a hair below 0 is 0, not 360.0 (-1e-15 % 360 rounds to 360.0), in the state and
+    in a stop's record; a local CRS has no true north: the record's convergence is NaN (as in
+    locate's and heading's outputs) and the heading from true north is the grid one, not one
+    shifted by an invented 0."""
+    from skyfix.traverse.run import _record, convergence_function
+
+    filt = PoseFilter(0.0, 0.0, 0.0, np.eye(3))
+    filt.predict(Odometry(1.0, 0.0, -1e-15, np.eye(3) * 1e-4))
+    assert 0.0 <= filt.state[2] < 360.0
+    local = ('ENGCRS["site",EDATUM["site datum"],CS[Cartesian,2],'
+             'AXIS["easting",east,LENGTHUNIT["metre",1]],'
+             'AXIS["northing",north,LENGTHUNIT["metre",1]]]')
+    conv = convergence_function(local)
+    assert math.isnan(conv(0.0, 0.0))
+    rec = _record(0, "s0", filt, conv)
+    assert math.isnan(rec["meridian_convergence_deg"])
+    assert rec["heading_deg"] == rec["grid_heading_deg"] and 0.0 <= rec["heading_deg"] < 360.0
+    utm = convergence_function("EPSG:32611")  # west of zone 11's central meridian: negative
+    assert utm(300000.0, 4146000.0) < 0.0
 
 
 def test_a_confident_outlier_is_gated_out():

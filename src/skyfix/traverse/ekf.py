@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..north import wrap_deg
+from ..north import heading_360, wrap_deg
 
 #: chi-square quantiles at 99.9 %, by degrees of freedom: the innovation gate
 GATE_CHI2 = {1: 10.83, 3: 16.27}
@@ -73,7 +73,7 @@ class PoseFilter:
     """EKF on (x [m], y [m], heading [deg from grid north])."""
 
     def __init__(self, x, y, heading_deg, cov):
-        self.state = np.array([float(x), float(y), float(heading_deg) % 360.0])
+        self.state = np.array([float(x), float(y), heading_360(float(heading_deg))])
         self.cov = np.array(cov, float).reshape(3, 3)
         if not np.all(np.isfinite(self.state)) or not np.all(np.isfinite(self.cov)):
             raise ValueError("the filter's start must be finite")
@@ -102,7 +102,7 @@ class PoseFilter:
         f, l_ = odo.forward_m, odo.left_m
         # forward is (sin h, cos h) in (east, north); left is forward turned 90 deg anticlockwise
         self.state = np.array([x + f * s - l_ * c, y + f * c + l_ * s,
-                               (h + odo.dheading_deg) % 360.0])
+                               heading_360(h + odo.dheading_deg)])
         big_f = np.array([[1.0, 0.0, (f * c + l_ * s) * RAD],
                           [0.0, 1.0, (-f * s + l_ * c) * RAD],
                           [0.0, 0.0, 1.0]])
@@ -118,7 +118,7 @@ class PoseFilter:
         if ok:
             k = self.cov @ h_mat.T @ s_inv
             self.state = self.state + k @ innov
-            self.state[2] %= 360.0
+            self.state[2] = heading_360(self.state[2])
             # Joseph form: stays symmetric and positive under rounding
             a = np.eye(3) - k @ h_mat
             self.cov = a @ self.cov @ a.T + k @ r_mat @ k.T

@@ -13,6 +13,7 @@ def traverse_errors(rows, trav, convergence):
     """Per stop: distance driven by the truth [m], fused position and heading errors [m, deg], and
     odometry alone's [m, deg]. Positions are compared with where the truth's terrain lies on the
     map (the truth plus the simulated map offset: no localiser can undo a misregistration)."""
+    from ..north import true_heading_deg
     from .ekf import wrap_deg
     from .simulate import map_offset_of, odometry_only
 
@@ -24,7 +25,7 @@ def traverse_errors(rows, trav, convergence):
     pe = np.array([math.hypot(r["x"] - t["x"], r["y"] - t["y"]) for r, t in zip(rows, truth)])
     he = np.abs(wrap_deg([r["heading_deg"] - t["heading_deg"] for r, t in zip(rows, truth)]))
     ope = np.array([math.hypot(o[0] - t["x"], o[1] - t["y"]) for o, t in zip(odo, truth)])
-    ohe = np.abs(wrap_deg([o[2] + convergence(o[0], o[1]) - t["heading_deg"]
+    ohe = np.abs(wrap_deg([true_heading_deg(o[2], convergence(o[0], o[1])) - t["heading_deg"]
                            for o, t in zip(odo, truth)]))
     return dist[: len(rows)], pe, he, ope[: len(rows)], ohe[: len(rows)]
 

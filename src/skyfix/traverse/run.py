@@ -189,13 +189,12 @@ def _heading_sigma(m: Measurement, filt: PoseFilter, cfg) -> float:
 
 
 def _record(k, name, filt, convergence, **kw) -> dict:
-    from ..north import true_heading_deg
+    from ..north import heading_360, true_heading_deg
 
     x, y, h = (float(v) for v in filt.state)
     conv = convergence(x, y)
     d = {"stop": name, "index": k, "x": x, "y": y,
-         "heading_deg": true_heading_deg(h, conv) if math.isfinite(conv) else h,
-         "grid_heading_deg": h, "meridian_convergence_deg": conv,
+         "heading_deg": true_heading_deg(h, conv), "grid_heading_deg": heading_360(h), "meridian_convergence_deg": conv,
          "position_sigma_m": filt.position_sigma_m, "heading_sigma_deg": filt.heading_sigma_deg}
     d.update(kw)
     d["filter"] = {"state": [x, y, h], "cov": filt.cov.tolist()}
@@ -203,13 +202,14 @@ def _record(k, name, filt, convergence, **kw) -> dict:
 
 
 def convergence_function(crs_wkt: str) -> Callable:
-    """``(x, y) -> meridian convergence [deg]`` (true minus grid north) in ``crs_wkt``; 0 where the
-    CRS cannot say (no CRS: headings then stay in grid north)."""
+    """``(x, y) -> meridian convergence [deg]`` (true minus grid north) in ``crs_wkt``; NaN where
+    the CRS has no true north (a local engineering CRS, none at all), as in every other output:
+    headings from true north are then the grid ones (:func:`~skyfix.north.true_heading_deg`), and
+    a stop's record says the convergence is unknown rather than 0."""
     from ..north import meridian_convergence_deg
 
     def convergence(x, y):
-        c = meridian_convergence_deg(crs_wkt, x, y)
-        return c if math.isfinite(c) else 0.0
+        return meridian_convergence_deg(crs_wkt, x, y)
 
     return convergence
 
