@@ -316,6 +316,46 @@ def test_cli_writes_json_and_plot(tmp_path):
     assert r.exit_code == 2 and "mask" in r.output
 
 
+def _with_exif_orientation(jpeg: bytes, orientation: int) -> bytes:
+    """A JPEG with an EXIF APP1 segment holding only the orientation tag (0x0112), as a camera
+    held on its side writes it (TIFF little-endian, one IFD entry)."""
+    import struct
+
+    tiff = (b"II*\x00" + struct.pack("<IH", 8, 1) + struct.pack("<HHIHH", 0x0112, 3, 1, orientation, 0)
+            + struct.pack("<I", 0))
+    payload = b"Exif\x00\x00" + tiff
+    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload + jpeg[2:]
+
+
+@pytest.mark.parametrize("orientation, turn", [(6, 1), (8, -1), (3, 2)])
+def test_a_photo_stored_on_its_side_is_read_upright(tmp_path, orientation, turn):
+    """Pixels stored turned, with the EXIF tag that turns them back (every viewer does): detect
+    and acquisition-init read the image upright. Read as stored, the sky lay at the side: no
+    skyline in any column."""
+    import cv2
+
+    from skyfix.formats import load_acquisition
+
+    img, truth = synth(np.full(200, 50.0), seed=8)
+    stored = np.ascontiguousarray(np.rot90(cv2.cvtColor(img, cv2.COLOR_RGB2BGR), turn))
+    ok, buf = cv2.imencode(".jpg", stored, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    p = tmp_path / "f0.jpg"
+    p.write_bytes(_with_exif_orientation(buf.tobytes(), orientation))
+    r = CliRunner().invoke(cli, ["detect", str(p), "-o", str(tmp_path / "sky.json")])
+    assert r.exit_code == 0, r.output
+    sk = read_skyline_json(tmp_path / "sky.json")
+    assert (sk.width, sk.height) == (200, 160)
+    err = np.abs(sk.rows - truth)
+    known = np.isfinite(err)
+    assert known.mean() >= 0.9 and np.median(err[known]) <= 1.0
+    r = CliRunner().invoke(cli, ["acquisition-init", str(tmp_path), "--images", "*.jpg",
+                                 "--hfov-deg", 60, "--pan-step-deg", 30, "--tilt-deg", 0,
+                                 "--camera-height-m", 1.5])
+    assert r.exit_code == 0, r.output
+    cam = load_acquisition(tmp_path).camera
+    assert (cam.width, cam.height) == (200, 160)
+
+
 def _dev_case(name):
     import cv2
 

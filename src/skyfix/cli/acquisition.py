@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from ..errors import ParameterError
-from ..formats.images import imread_whole
+from ..formats.images import imread_upright
 from .main import note
 
 
@@ -68,10 +68,8 @@ def acquisition_init(folder, images, hfov_deg, focal_px, pan_deg, pan_step_deg, 
                      overwrite):
     """Describe FOLDER's images as an acquisition: camera intrinsics (from the first image's size
     and the field of view or focal length, principal point at the centre), each image's pan and
-    tilt, the camera height and the attitude prior. The result is read back and checked as
-    ``skyfix locate`` will read it."""
-    import cv2
-
+    tilt, the camera height and the attitude prior. It is checked as ``skyfix locate`` will read
+    it before it is written. Images are taken upright as their EXIF orientation says."""
     from .._io import check_can_write
     from ..camera import Camera, Distortion
     from ..formats import ACQUISITION_FILE, Acquisition, Frame, acquisition_from_dict, save_acquisition
@@ -94,7 +92,7 @@ def acquisition_init(folder, images, hfov_deg, focal_px, pan_deg, pan_step_deg, 
             raise ParameterError(f"{len(names)} images every {pan_step_deg:g} deg span more than "
                                  "360 deg: check --pan-step-deg, or give each --pan-deg")
     check_can_write(root / ACQUISITION_FILE, overwrite)
-    first = imread_whole(root / names[0], cv2.IMREAD_UNCHANGED)
+    first = imread_upright(root / names[0])
     if first is None:
         raise ParameterError(f"cannot read {root / names[0]} as an image")
     h, w = first.shape[:2]
@@ -126,7 +124,7 @@ def acquisition_init(folder, images, hfov_deg, focal_px, pan_deg, pan_step_deg, 
     # checked before it is written: a refused --overwrite leaves the file that was there
     back = acquisition_from_dict(acq.to_dict(), root)  # the localiser's own checks, every field
     for f in back.frames:
-        im = imread_whole(root / f.image, cv2.IMREAD_UNCHANGED)
+        im = imread_upright(root / f.image)
         if im is None or im.shape[:2] != (h, w):
             raise ParameterError(f"{f.image} is not a {w} x {h} image like {names[0]}: one camera, "
                                  "one image size")

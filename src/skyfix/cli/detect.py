@@ -10,24 +10,23 @@ import click
 from .._io import PLOT_FORMATS, check_outputs, to_json
 from ..detect.options import DEFAULT_METHOD, METHODS
 from ..errors import ParameterError, SkyfixError
-from ..formats.images import imread_whole
+from ..formats.images import imread_upright, imread_whole
 from .main import note
 
 
 
 def read_image(path) -> "np.ndarray":  # noqa: F821
-    """An image file as H x W x 3 RGB or H x W grey (8 or 16 bit)."""
+    """An image file as H x W x 3 RGB or H x W grey (8 or 16 bit), upright as its EXIF
+    orientation says (a mask is read the same way)."""
     import cv2
 
     path = Path(path)
     if not path.is_file():
         raise SkyfixError(f"image {path} does not exist")
-    img = imread_whole(path, cv2.IMREAD_UNCHANGED)
+    img = imread_upright(path)
     if img is None:
         raise SkyfixError(f"cannot read {path} as an image (PNG, JPEG or TIFF expected)")
     if img.ndim == 3:
-        if img.shape[2] == 4:
-            img = img[..., :3]
         img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     from ..detect import MIN_HEIGHT_PX, MIN_WIDTH_PX
 

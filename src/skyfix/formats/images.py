@@ -5,6 +5,12 @@ standard error ("Premature end of JPEG file") and fills what it could not read w
 a detector then finds a skyline (``fuse`` found one in all 1388 columns of a JPEG cut to an eighth,
 exit 0). The decoder's own warnings are caught around the read and turn into a refusal naming the
 file; anything else the decoder says is passed on.
+
+A camera that was held on its side writes its pixels as the sensor read them and an EXIF
+orientation tag that says how to turn them upright; every viewer turns them. Read as stored
+(``cv2.IMREAD_UNCHANGED`` ignores the tag), such a photo had its sky at the side: no skyline in
+any column, and a message about exposure. :func:`imread_upright` reads images as they are meant
+to be seen.
 """
 
 from __future__ import annotations
@@ -33,6 +39,15 @@ def _stderr_to(f):
     finally:
         os.dup2(saved, 2)
         os.close(saved)
+
+
+def imread_upright(path):
+    """An image as its camera meant it to be seen (the EXIF orientation applied; a JPEG without
+    the tag, a PNG or a TIFF as stored), at its own bit depth, grey or colour (BGR), any alpha
+    channel dropped; refused or None as :func:`imread_whole`."""
+    import cv2
+
+    return imread_whole(path, cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH)
 
 
 def imread_whole(path, flags):

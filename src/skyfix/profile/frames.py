@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import AcquisitionError, DetectionError
 from ..formats import Acquisition, Skyline
-from ..formats.images import imread_whole
+from ..formats.images import imread_upright
 
 
 #: A detector: RGB uint8 image (H, W, 3) and a validity mask (or None) -> Skyline.
@@ -22,18 +22,17 @@ log = logging.getLogger(__package__)  # messages name the stage, as before the s
 
 
 def read_rgb(path) -> np.ndarray:
-    """An image as RGB uint8 (H, W, 3); 16-bit images are scaled down."""
+    """An image as RGB uint8 (H, W, 3), upright as its EXIF orientation says; 16-bit images are
+    scaled down."""
     import cv2
 
-    img = imread_whole(path, cv2.IMREAD_UNCHANGED)
+    img = imread_upright(path)
     if img is None:
         raise AcquisitionError(f"cannot read image {path}: not an image OpenCV can decode")
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)
     if img.ndim == 2:
         img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
-    elif img.shape[2] == 4:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
     else:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     return np.ascontiguousarray(img)
