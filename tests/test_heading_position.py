@@ -62,21 +62,69 @@ def test_heading_from_a_position_20_m_off_beside_near_terrain(tmp_path):
     assert r.exit_code == 2 and "--position-sigma-m" in r.output and "Traceback" not in r.output
 
 
-def test_position_heading_sigma_closed_form():
-    """A skyline equally far all round does not turn under a translation; one ridge alone,
-    ``d`` away, turns by ``sigma / d``; two equal ridges 90 deg apart by ``sigma / (sqrt(2) d)``."""
+def test_position_heading_sigma_from_the_gradient():
+    """sigma * |grad yaw|: a yaw linear in the position gives it exactly, central or, where one
+    side is off the DEM (None), one-sided from the fit's own answer; no position error, none."""
     from skyfix.pose.heading import position_heading_sigma_deg
 
-    n = 360
-    d = np.full(n, 2000.0)
-    assert position_heading_sigma_deg(d, np.ones(n), 10.0) < 1e-12
-    one = np.full(n, np.nan)
-    one[40] = 500.0
-    np.testing.assert_allclose(position_heading_sigma_deg(one, np.ones(n), 10.0),
-                               math.degrees(10.0 / 500.0), rtol=1e-12)
-    two = np.full(n, np.nan)
-    two[[0, 90]] = 500.0
-    w = np.zeros(n)
-    w[[0, 90]] = 1.0
-    np.testing.assert_allclose(position_heading_sigma_deg(two, w, 10.0),
-                               math.degrees(10.0 / 500.0) / math.sqrt(2.0), rtol=1e-12)
+    def linear(dx, dy):
+        return 10.0 + 0.003 * dx - 0.004 * dy
+
+    def east_edge(dx, dy):
+        return None if dx > 0 else linear(dx, dy)
+
+    def across_north(dx, dy):  # differences are wrapped
+        return (359.99 + 0.003 * dx) % 360.0
+
+    np.testing.assert_allclose(position_heading_sigma_deg(linear, 10.0, 7.0), 7.0 * 0.005,
+                               rtol=1e-9)
+    np.testing.assert_allclose(position_heading_sigma_deg(east_edge, 10.0, 7.0), 7.0 * 0.005,
+                               rtol=1e-9)
+    np.testing.assert_allclose(position_heading_sigma_deg(across_north, 359.99, 2.0), 0.006,
+                               rtol=1e-6)
+    assert position_heading_sigma_deg(linear, 10.0, 0.0) == 0.0
+
+
+def test_position_heading_sigma_against_refits_at_drawn_positions():
+    """The reference is the slow direct computation: the heading fitted again at rough positions
+    drawn about the truth (5 m per axis) on hilly terrain with a ridge 250-350 m away. The
+    reported share must match the spread of those refits (it was 2.6-3.4x too small when taken
+    from the skyline's geometry alone)."""
+    from skyfix.dem import Dem
+    from skyfix.horizon import render_horizons
+    from skyfix.north import wrap_deg
+    from skyfix.pose.attitude import fit_attitude
+    from skyfix.pose.forward import body_profile
+    from skyfix.pose.heading import position_heading_sigma_deg
+
+    rng = np.random.default_rng(5)
+    n, cell = 241, 10.0
+    yy, xx = np.mgrid[0:n, 0:n] * cell
+    z = np.zeros((n, n))
+    for _ in range(25):
+        cx, cy = rng.uniform(0, n * cell, 2)
+        r, h = rng.uniform(100, 500), rng.uniform(20, 150)
+        z += h * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * r * r))
+    c = n * cell / 2
+    z += 80 * np.exp(-(((xx - c - 200) + (yy - c - 200)) * 0.7) ** 2 / (2 * 30 ** 2))
+    dem = Dem.from_array(z[::-1].copy(), cell)
+    x0, y0, yaw, sigma = c, c, 37.0, 5.0
+    q = body_profile(render_horizons(dem, [x0], [y0], azimuth_bins=1440).elevation_deg[0], yaw,
+                     n_bins=360)
+
+    def fit_at(px, py, start):
+        hb = render_horizons(dem, [px], [py], azimuth_bins=1440)
+        return fit_attitude(q, hb.elevation_deg[0], start, restarts_deg=(0.0,),
+                            yaw_window_deg=10.0, yaw_center_deg=yaw,
+                            world_weights=position_weights(hb.skyline_distance_m[0], sigma, 0.1)
+                            ).yaw_deg
+
+    y_fit = fit_at(x0, y0, yaw)
+    assert abs(wrap_deg(y_fit - yaw)) < 1e-3
+    reported = position_heading_sigma_deg(lambda dx, dy: fit_at(x0 + dx, y0 + dy, y_fit), y_fit,
+                                          sigma)
+    draws = rng.normal(0.0, sigma, (40, 2))
+    errs = np.array([wrap_deg(fit_at(x0 + dx, y0 + dy, yaw) - yaw) for dx, dy in draws])
+    spread = float(np.sqrt(np.mean(errs ** 2)))
+    assert spread > 0.02  # the set-up: the near ridge turns the heading measurably
+    assert 0.75 < reported / spread < 1.33, (reported, spread)
