@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from installs import child_env
+from installs import child_env, load_average
 
 from skyfix.detect import (PRESETS, DpOptions, NetOptions, combine_scores, detect_skyline, score_skyline,
                            scored_columns)
@@ -360,6 +360,12 @@ def main(argv=None):
         if n_members != args.cv_folds:
             raise SystemExit(f"--cv with fuse needs --cv-folds {n_members}: the shipped network's "
                              f"members each held out one of {n_members} folds")
+        # an image no member held out would be scored by the whole ensemble, which saw it
+        missing = [p[0] for p in pairs if p[0] not in member]
+        if missing:
+            raise SystemExit("--cv with fuse: the shipped network names no member holding out "
+                             + ", ".join(missing[:5]) + (" ..." if len(missing) > 5 else "")
+                             + " (images it was not trained with the folds of): drop them")
     if args.cv:
         sim_dirs = sorted(p for p in Path(args.cv_sim).iterdir() if p.is_dir()) if args.cv_sim else []
         models = site_fold_models(folder, [p[0] for p in pairs], args.cv_folds, sim_dirs,
@@ -390,4 +396,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
+    print(f"load average at the start: {load_average()}", flush=True)
     main()
+    print(f"load average at the end: {load_average()}")

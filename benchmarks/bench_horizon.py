@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from installs import load_average
 from skyfix.dem import load_dem
 from skyfix.horizon import reference_horizon, render_horizons
 
@@ -87,4 +88,6 @@ def main():
 
 
 if __name__ == "__main__":
+    print(f"load average at the start: {load_average()}", flush=True)
     main()
+    print(f"load average at the end: {load_average()}")

@@ -142,11 +142,15 @@ def main():
 
     db = open_database(args.db)  # refuses an incomplete store
     ny, nx = db.shape
-    if args.truth_x is None:
+    if (args.truth_x is None) != (args.truth_y is None):
+        ap.error("give --truth-x and --truth-y together")
+    if args.truth_x is not None:
+        tx, ty = args.truth_x, args.truth_y
+    elif args.profile:  # a profile of its own: no truth to score against unless given
+        tx = ty = None
+    else:
         tx, ty = db.xy_of(ny // 2 + 37, nx // 3)
         tx, ty = float(tx) + 1.7, float(ty) - 2.2  # off-grid
-    else:
-        tx, ty = args.truth_x, args.truth_y
     tr, tc = (int(v) for v in db.index_of(tx, ty)) if tx is not None else (None, None)
     print(f"store {args.db}: {nx} x {ny} = {nx * ny:,} positions x {db.azimuth_bins} bins, "
           f"{db.n_blocks} blocks; preset {args.preset}; skyfix run by {PYTHON[0]}")

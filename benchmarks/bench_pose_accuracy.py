@@ -11,7 +11,9 @@ Prints (never asserts) tables like the source study's:
 - the reliability of the shipped confidence (``skyfix/models/confidence.json``).
 
 Cases come from ``scripts/calibrate_confidence.py`` (same simulator), with another seed by
-default, so the reliability table is out of sample. The scenario-1 store is an in-memory grid
+default: the reliability table is out of sample by seed only, not by site (the default DEMs and
+area are those the shipped confidence was fitted on; ``--dems`` another DEM for a held-out
+site). The scenario-1 store is an in-memory grid
 (``--area-m``, ``--spacing-m``) rendered from each DEM unless ``--store DEMNAME=ZARR`` names a
 built one; ``--db /work/data/sierra_7km_5m.zarr`` runs scenario 1 on the real 7 x 7 km / 5 m store
 (Sierra) instead. ``--from-cases FILE`` prints the tables from an existing case file only.
@@ -31,6 +33,8 @@ import zlib
 from pathlib import Path
 
 import numpy as np
+
+from installs import load_average
 
 ROOT = Path(__file__).resolve().parents[1]
 spec = importlib.util.spec_from_file_location("calibrate_confidence",
@@ -100,7 +104,8 @@ def tables(rows):
             z = np.array([r["err"] / r["sigma"] for r in rr])
             print(f"  {key:13s} n={len(rr):3d}  median |err|/sigma {np.median(z):.2f}  "
                   f"p90 {np.percentile(z, 90):.2f}")
-    print("\nReliability of the shipped confidence (each scenario judged at its own tolerance):")
+    print("\nReliability of the shipped confidence (each scenario judged at its own tolerance; out of "
+          "sample by seed, not by site where the DEMs are the ones it was fitted on):")
     for key in ("locate", "locate_prior", "heading"):
         rr = [r for r in rows if r["scenario"] == key]
         if rr:
@@ -183,4 +188,6 @@ def main():
 
 
 if __name__ == "__main__":
+    print(f"load average at the start: {load_average()}", flush=True)
     main()
+    print(f"load average at the end: {load_average()}")

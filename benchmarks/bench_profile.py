@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from installs import load_average
 from skyfix.dem import load_dem
 from skyfix.errors import SkyfixError
 from skyfix.formats import Skyline, Truth, load_acquisition, load_truth, read_skyline_json
@@ -142,8 +143,10 @@ def main():
                       f"p95 {np.median([a['p95'] for a in v]):.4f}  worst p95 {max(a['p95'] for a in v):.4f}  "
                       f"cases {len(v)}/{len(sel)}")
     print(f"stitching failed in {stitch_fail}/{stitch_runs} frame sets")
-    if pan_rec:
-        rel = [r["max_rel_err_deg"] for r in pan_rec if r]
+    rel = [r["max_rel_err_deg"] for r in pan_rec if r]
+    if pan_rec and not rel:
+        print(f"pan recovery: none of the {len(pan_rec)} sets could be recovered")
+    elif rel:
         print(f"pan recovery (+-1 deg injected, truth skylines): max |error| after removing the common "
               f"offset: worst {max(rel):.3f} deg over {len(rel)} sets; common offset vs -mean(injected): "
               f"worst {max(abs(r['offset_deg'] + r['mean_injected_deg']) for r in pan_rec if r):.3f} deg")
@@ -233,4 +236,6 @@ def pan_recovery(folder: Path, dst: Path, body, seed):
 
 
 if __name__ == "__main__":
+    print(f"load average at the start: {load_average()}", flush=True)
     main()
+    print(f"load average at the end: {load_average()}")

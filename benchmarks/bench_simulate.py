@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from installs import load_average
 from skyfix.camera import get_camera
 from skyfix.dem import load_dem
 from skyfix.formats import Truth
@@ -72,4 +73,6 @@ def main(path: str | None = None) -> None:
 
 
 if __name__ == "__main__":
+    print(f"load average at the start: {load_average()}", flush=True)
     main(*sys.argv[1:2])
+    print(f"load average at the end: {load_average()}")

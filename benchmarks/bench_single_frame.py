@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cache import check_reuse, record
+
 
 def _ang(a):
     return (a + 180.0) % 360.0 - 180.0
@@ -73,6 +75,12 @@ def run_dem(dem_path, out: Path, args) -> list[dict]:
     world, off = dem, (0.0, 0.0)
     if args.map_errors:
         world, off = world_dem(dem, MapErrors(), args.seed), map_offset(MapErrors(), args.seed)
+    # what the kept frames depend on (the heading prior is drawn anew on every run)
+    settings = dict(dem=name, seed=args.seed, prior_sigma_deg=args.prior_sigma_deg,
+                    map_errors=bool(args.map_errors))
+    marker = out / f"{name}_settings.json"
+    check_reuse(marker, settings, made=any(out.glob(f"{name}_[0-9][0-9][0-9]")))
+    record(marker, settings)
     rng = np.random.default_rng([args.seed, 5])
     x0, y0, x1, y1 = dem.bounds
     m = 0.25 * min(x1 - x0, y1 - y0)

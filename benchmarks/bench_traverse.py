@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cache import check_reuse, record
+
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -46,7 +48,13 @@ def main(argv=None):
     trav, res = out / "traverse", out / "result"
     sky = [sys.executable, "-m", "skyfix.cli.main"]
     load0 = os.getloadavg()[0]
+    # what the kept traverse depends on: a rerun with other settings must not score it
+    settings = dict(dem=Path(args.dem).name, length_m=args.length_m, spacing_m=args.spacing_m,
+                    seed=args.seed, mode=args.mode, stop_conditions=list(args.stop_conditions),
+                    map_errors=bool(args.map_errors), world_dem=args.world_dem)
+    check_reuse(out / "traverse_settings.json", settings, made=(trav / "truth.jsonl").is_file())
     if not (trav / "truth.jsonl").is_file():
+        record(out / "traverse_settings.json", settings)
         cmd = sky + ["simulate-traverse", args.dem, "-o", str(trav), "--length-m", str(args.length_m),
                      "--stop-spacing-m", str(args.spacing_m), "--seed", str(args.seed), "--mode", args.mode]
         for c in args.stop_conditions:

@@ -32,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_detect import dev_pairs, site_fold_models  # noqa: E402
 from cv_net import NO_SKY  # noqa: E402
 
+from installs import load_average
 from skyfix.detect import DpOptions, combine_scores, detect_skyline, score_skyline  # noqa: E402
 from skyfix.detect.net import load_sky_net  # noqa: E402
 from skyfix.detect.options import PRESETS, check_options  # noqa: E402
@@ -139,4 +140,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
+    print(f"load average at the start: {load_average()}", flush=True)
     main()
+    print(f"load average at the end: {load_average()}")

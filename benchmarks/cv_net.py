@@ -76,8 +76,10 @@ def _finish(rows, conf, valid, opt, f=1):
 
 def run_cv_net(pairs, folder: Path, *, write_calibration: str = "", out=sys.stdout, options=None):
     """Score ``net`` on ``pairs`` (name, image, truth), each image by the fold model of ``folder``
-    that held it out; ``options``: NetOptions fields for every run (the confidence cut and the
-    run hysteresis excepted: they are chosen here). Returns {name: (score, rows, confidence)}."""
+    that held it out; ``options``: NetOptions fields for every run. The confidence cut is chosen
+    here, on the other folds; the network runs without it and without the run hysteresis, which
+    are applied afterwards (the hysteresis as ``options`` gives it, else its default). Returns
+    {name: (score, rows, confidence)}."""
     models = _fold_models(folder)
     missing = [n for n, _, _ in pairs if n not in models]
     if missing:
@@ -106,7 +108,7 @@ def run_cv_net(pairs, folder: Path, *, write_calibration: str = "", out=sys.stdo
 
     def scores_at(rs, cal, thr):
         res = {}
-        opt = replace(NetOptions(), min_confidence=thr)
+        opt = replace(NetOptions(**(options or {})), min_confidence=thr)
         for r in rs:
             conf = np.interp(r["raw"], *cal)
             rows, conf = _finish(r["rows"], conf, r["valid"], opt)

@@ -24,3 +24,9 @@ def child_env(python: str, own_src: str | None = None) -> dict:
     if is_other_install(python):
         return {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     return dict(os.environ, PYTHONPATH=own_src) if own_src else dict(os.environ)
+
+
+def load_average() -> str:
+    """The 1, 5 and 15 minute load averages: every time a benchmark prints is read beside them
+    (this machine is shared)."""
+    return " ".join(f"{v:.2f}" for v in os.getloadavg())
