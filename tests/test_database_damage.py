@@ -396,3 +396,83 @@ def test_build_db_out_through_a_file_is_named_before_any_work(tmp_path):
         assert r.exit_code == 2, r.output
         assert f"{plain} is a file, not a folder" in r.output and "creating" not in r.output
     assert plain.read_text() == "{}"
+
+
+# --- a second build, an unwritable place, markers that only look like markers ------------------
+def test_overwrite_where_the_new_store_cannot_be_staged_keeps_the_old_one(dem_path, clean_db,
+                                                                          tmp_path, monkeypatch):
+    """--overwrite deleted the store, then failed to stage the new one beside it (a folder the
+    user cannot write): all of it lost. Now the place is probed first (EACCES simulated: root
+    writes anywhere)."""
+    import tempfile
+
+    db = _copy(clean_db, tmp_path)
+    before = _files(db)
+    real = tempfile.mkstemp
+
+    def refuse(*a, dir=None, **kw):
+        if dir is not None and Path(dir) == tmp_path:
+            raise PermissionError(13, "Permission denied", str(dir))
+        return real(*a, dir=dir, **kw)
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    res = _cli("build-db", dem_path, "-o", db, "--bounds", *BOUNDS, "--spacing-m", SPACING,
+               "--azimuth-bins", BINS, "--block-positions", 8, "--overwrite", "--no-progress",
+               "--workers", 0, "--camera-height-m", 2)
+    assert res.exit_code == 2 and f"cannot write {db}" in res.output, res.output
+    assert "not writable" in res.output
+    assert _files(db) == before
+
+
+def test_a_second_build_of_the_same_store_is_refused_while_the_first_runs(dem_path, tmp_path):
+    """Two builds of one store at once: the second deleted the first's staging folder, the first
+    crashed, and the store was left with neither's parameters."""
+    from skyfix.database.build import build_lock
+
+    out = tmp_path / "db.zarr"
+    with build_lock(out):  # the first build, holding its lock
+        with pytest.raises(DatabaseError, match="another skyfix build-db is writing .*db.zarr"):
+            _build(dem_path, out)
+        assert not out.exists()
+    r = _build(dem_path, out)  # once it is done, the same command runs
+    assert r.built == r.n_blocks
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["db.zarr"]  # no lock file left
+
+
+@pytest.mark.parametrize("marker", ["[]", '"x"', '{"zarr_format": 3, "attributes": null}'])
+def test_a_marker_that_is_not_a_record_is_corrupt_to_verify_and_rebuilt(dem_path, clean_db,
+                                                                        tmp_path, marker):
+    """Valid JSON that is not a block's record: verify crashed (a list indexed by a string) or
+    called the block missing while build-db called the store complete."""
+    db = _copy(clean_db, tmp_path)
+    f = db / MARKER_DIR / "r0001_c0001" / "zarr.json"
+    f.write_text(marker)
+    res = _cli("verify", db, "--samples", 0)
+    assert res.exit_code == 2 and "block (1, 1)" in res.output and "marker unreadable" in res.output
+    r = _build(dem_path, db)  # redone, not "already complete"
+    assert r.built == 1
+    assert _cli("verify", db, "--samples", 0).exit_code == 0
+
+
+def test_a_marker_outside_the_grid_and_arrays_without_metadata(dem_path, clean_db, tmp_path):
+    """A block's marker moved to a name outside the grid: build-db said complete while info and
+    locate said 8 of 9. An array's metadata gone: build-db said complete, everything else said
+    damaged. Now the build redoes the block, and names the damage with what to do."""
+    db = _copy(clean_db, tmp_path)
+    (db / MARKER_DIR / "r0001_c0001").rename(db / MARKER_DIR / "r0009_c0009")
+    assert _build(dem_path, db).built == 1
+    (db / "elevation" / "zarr.json").unlink()
+    with pytest.raises(DatabaseError, match="arrays cannot be opened .*--overwrite"):
+        _build(dem_path, db)
+    assert _build(dem_path, db, overwrite=True).built == 9
+
+
+def test_overwrite_through_a_symbolic_link_is_refused(dem_path, clean_db, tmp_path):
+    db = _copy(clean_db, tmp_path)
+    link = tmp_path / "link.zarr"
+    link.symlink_to(db)
+    res = _cli("build-db", dem_path, "-o", link, "--bounds", *BOUNDS, "--spacing-m", SPACING,
+               "--azimuth-bins", BINS, "--block-positions", 8, "--overwrite", "--no-progress",
+               "--workers", 0)
+    assert res.exit_code == 2 and "is a symbolic link" in res.output, res.output
+    assert link.is_symlink() and (db / "zarr.json").is_file()

@@ -163,6 +163,19 @@ def _kernel_file_system(folder: Path, kind: str) -> str:
             "yours: give a folder on a disk")
 
 
+def check_staging_writable(path) -> None:
+    """Refuse (``cannot write PATH``) a folder output ``path`` that is staged beside itself and
+    renamed into place, when no file can be created there: in the nearest existing folder above
+    it. Checked before an --overwrite deletes what was there (a store deleted, then the new one
+    refused by a folder the user cannot write, left nothing)."""
+    p = Path(path).absolute().parent
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    if not p.is_dir():
+        raise cannot_write(path, f"{p} is a file, not a folder")
+    _probe_folder(p, path)
+
+
 def _probe_folder(folder: Path, path) -> None:
     """Create and delete a temporary file in ``folder``: the one reliable test that ``path`` can
     be written there (permissions, a read-only file system, root's exemptions, ACLs)."""

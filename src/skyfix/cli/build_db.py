@@ -46,16 +46,18 @@ def build_db(dem, out, bounds, spacing_m, camera_height_m, azimuth_bins, max_dis
     --overwrite starts afresh. A grid of more than 1e9 positions or
     ~500 GB is refused as a likely typo.
     """
-    from .._io import check_folder_output
+    from .._io import check_folder_output, writing_to
     from ..database import build_database
     from ..progress import bars_shown
 
     check_folder_output(out)
-    r = build_database([dem, *more_dems] if more_dems else dem, out, bounds, spacing_m, camera_height_m=camera_height_m,
-                       azimuth_bins=azimuth_bins, max_distance_m=max_distance_m, planet=planet,
-                       workers=workers, scheduler=scheduler, overwrite=overwrite,
-                       progress=not no_progress and bars_shown(), block=block_positions,
-                       renderer=renderer)
+    with writing_to(out):  # an OS error names --out, not a staging folder beside it
+        r = build_database([dem, *more_dems] if more_dems else dem, out, bounds, spacing_m,
+                           camera_height_m=camera_height_m, azimuth_bins=azimuth_bins,
+                           max_distance_m=max_distance_m, planet=planet, workers=workers,
+                           scheduler=scheduler, overwrite=overwrite,
+                           progress=not no_progress and bars_shown(), block=block_positions,
+                           renderer=renderer)
     if r.indexed:
         click.echo(f"{r.path}: coarse index added to {r.indexed} block{'s' * (r.indexed != 1)} built earlier (the search "
                    "now decodes only the blocks it needs)")

@@ -28,13 +28,14 @@ import os
 import shutil
 import time
 from concurrent.futures import FIRST_COMPLETED, Executor, wait
-from contextlib import nullcontext
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .. import __version__
+from .._io import check_staging_writable
 from ..errors import DatabaseError, OutputExistsError, ParameterError
 from ..planets import Planet, get_planet, resolve_planet
 from .chunks import skyline_codecs
@@ -218,7 +219,16 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
     params = build_params(dem_sha256=dem.checksum, grid=grid, bounds=bounds,
                           camera_height_m=camera_height_m, azimuth_bins=azimuth_bins,
                           max_distance_m=max_distance_m, planet=planet, renderer=renderer)
+    with build_lock(out):  # before the plan: a build finishing meanwhile would make it stale
+        return _plan_and_build(out, params, grid, overwrite, executor, workers, scheduler,
+                               dem_path, dem, planet, progress)
+
+
+def _plan_and_build(out, params, grid, overwrite, executor, workers, scheduler, dem_path, dem,
+                    planet, progress) -> BuildResult:
     action = _plan_output(out, params, grid, overwrite)  # refuses, deletes nothing
+    if action in ("new", "replace", "unlink", "rmdir"):  # staged beside it, renamed into place
+        check_staging_writable(out)
     if action == "complete":
         n = len(grid.blocks())
         log.info("%s is already complete, built with these parameters: nothing to do "
@@ -231,6 +241,43 @@ def build_database(dem_path, out, bounds, spacing_m: float, *, camera_height_m: 
         if scheduler is not None:
             _check_workers_see(ex, dem_path, out)
         return _build(out, action, dem_path, dem, grid, params, planet, ex, slots, single, progress)
+
+
+@contextmanager
+def build_lock(out: Path):
+    """Hold ``.NAME.lock`` beside the store ``out`` while writing it: a second build of the same
+    store (another shell, a script run twice) is refused instead of deleting the first one's
+    staging folder and leaving a store of neither's parameters. The lock goes with the process
+    (``flock``), killed or not; the file is removed when the build ends (a killed one leaves it,
+    unlocked, for the next to take)."""
+    import fcntl
+
+    lock = out.parent / f".{out.name}.lock"
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        f = open(lock, "a+")
+    except OSError:  # a folder it cannot write: the checks that follow say so, or resume needs none
+        yield
+        return
+    with f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.seek(0)
+            who = f.read().strip() or "another process"
+            raise DatabaseError(f"another skyfix build-db is writing {out} ({who}): wait for it "
+                                "to finish, or stop it, then run this command again") from None
+        f.seek(0)
+        f.truncate()
+        f.write(f"process {os.getpid()}")
+        f.flush()
+        try:
+            yield
+        finally:
+            # removed while still held: a build that opened it meanwhile fails to lock it and is
+            # refused; one that starts after finds no file and makes its own
+            lock.unlink(missing_ok=True)
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def _paths_seen(dem_path, out_parent: str) -> tuple[bool, bool]:
@@ -309,6 +356,10 @@ def _plan_output(out: Path, params: dict, grid: Grid, overwrite: bool) -> str:
     --overwrite), ``replace`` (a skyfix database, with --overwrite), ``resume``, ``index`` (a
     complete store built without the coarse index: it is added), or ``complete`` (nothing to do).
     """
+    if out.is_symlink() and overwrite:
+        raise OutputExistsError(f"{out} is a symbolic link (to {os.path.realpath(out)}): give "
+                                "the store's own path to --overwrite it (skyfix does not delete "
+                                "through a link)")
     if not out.exists():
         return "new"
     if not out.is_dir():

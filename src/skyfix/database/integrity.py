@@ -192,15 +192,28 @@ def absent_data(path: Path, g, grid: Grid, done) -> dict:
 
 
 def intact_blocks(path: Path, grid: Grid) -> set[tuple[int, int]]:
-    """Blocks with a marker and every chunk file: a resume redoes the others."""
+    """Blocks of ``grid`` with a readable marker and every chunk file: a resume redoes the others
+    (a marker folder named for a block outside the grid counts for none, as when the store is
+    opened). Raises :class:`DatabaseError` for a store whose arrays cannot be opened (their
+    metadata gone): taking every marked block as built then called it complete."""
     import zarr
 
-    done = done_blocks(path)
+    done = set()
+    for br, bc in done_blocks(path) & set(grid.blocks()):
+        try:
+            read_marker(path, br, bc)
+        except (OSError, ValueError):
+            continue
+        done.add((br, bc))
     try:
         g = zarr.open_group(str(path), mode="r")
+        for name in DATA_ARRAYS:
+            g[name]
         absent = absent_data(path, g, grid, done)
-    except Exception:  # a store too broken to list: the build below will say so, or redo it all
-        return done
+    except Exception as e:  # zarr raises several unrelated types for a broken store
+        raise DatabaseError(f"{path} is a skyfix database whose arrays cannot be opened "
+                            f"({type(e).__name__}: {e}): pass --overwrite to rebuild it from "
+                            "scratch") from None
     return done - set(absent)
 
 

@@ -237,15 +237,23 @@ def marker_document(marker: dict) -> dict:
 
 def read_marker(store, br: int, bc: int) -> dict | None:
     """Block (br, bc)'s marker in the database folder ``store`` (either layout), None if absent.
-    Raises ``OSError`` or ``ValueError`` when it exists but cannot be read."""
+    Raises ``OSError`` or ``ValueError`` when it exists but cannot be read, or does not hold a
+    block's record with its checksums (``[]``, ``{"attributes": null}``: a marker that only
+    looked like one made verify crash, and the build call the block built)."""
     import json
     from pathlib import Path
 
     d = Path(store) / MARKER_DIR
     p = d / marker_name(br, bc)
-    if p.is_file():
-        return json.loads(p.read_text())["attributes"]
     old = d / legacy_marker_name(br, bc)
-    if old.is_file():
-        return json.loads(old.read_text())
-    return None
+    if p.is_file():
+        doc = json.loads(p.read_text())
+        marker = doc.get("attributes") if isinstance(doc, dict) else doc
+    elif old.is_file():
+        marker = json.loads(old.read_text())
+    else:
+        return None
+    if not isinstance(marker, dict) or not isinstance(marker.get("sha256"), dict):
+        raise ValueError(f"it holds a JSON {type(marker).__name__}, not a block's record with its "
+                         "checksums")
+    return marker
