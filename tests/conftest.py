@@ -37,6 +37,21 @@ def plane_dem(size_m: float, spacing_m: float, z0: float = 100.0, slope_x: float
     return Dem.from_array(z, spacing_m)
 
 
+def gaussian_hills(n: int, cell_m: float, count: int, rng, amp_m=(20.0, 120.0),
+                   radius_m=(100.0, 400.0)):
+    """Heights [m] (n x n, row 0 first, ``cell_m`` apart) of ``count`` Gaussian hills, each at a
+    uniform place with a uniform height in ``amp_m`` and width (sigma) in ``radius_m``, drawn in
+    that order from ``rng``: rolling relief whose skyline is neither flat nor one ridge.
+    Also the grid's (yy, xx) [m]."""
+    yy, xx = np.mgrid[0:n, 0:n] * cell_m
+    z = np.zeros((n, n))
+    for _ in range(count):
+        cx, cy = rng.uniform(0, n * cell_m, 2)
+        a, s = rng.uniform(*amp_m), rng.uniform(*radius_m)
+        z += a * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * s * s))
+    return z, yy, xx
+
+
 @pytest.fixture
 def tmp_dem_file(tmp_path):
     """Write a Dem to a GeoTIFF and return the path."""

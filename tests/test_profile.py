@@ -16,6 +16,7 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import gaussian_hills
 from skyfix.camera import Camera, Distortion, camera_from_fov, get_camera, r_world_cam
 from skyfix.cli.main import cli
 from skyfix.dem import Dem
@@ -38,14 +39,8 @@ def scene():
 def make_scene():
     """Gaussian hills (relief that keeps the skyline inside a 45-deg camera), the rover near the
     middle; world horizons at 360 bins (truth) and 7200 bins (to draw skylines)."""
-    rng = np.random.default_rng(0)
     n, sp = 241, 10.0
-    yy, xx = np.mgrid[0:n, 0:n] * sp
-    z = np.zeros((n, n))
-    for _ in range(25):
-        cx, cy = rng.uniform(0, n * sp, 2)
-        a, s = rng.uniform(20, 120), rng.uniform(100, 400)
-        z += a * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * s * s))
+    z, _, _ = gaussian_hills(n, sp, 25, np.random.default_rng(0))
     dem = Dem.from_array(z, sp)
     x, y = 1200.0, 1200.0
     fine = render_horizons(dem, [x], [y], azimuth_bins=FINE).elevation_deg[0].astype(float)
