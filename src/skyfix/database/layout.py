@@ -254,6 +254,7 @@ def read_marker(store, br: int, bc: int) -> dict | None:
     else:
         return None
     if not isinstance(marker, dict) or not isinstance(marker.get("sha256"), dict):
-        raise ValueError(f"it holds a JSON {type(marker).__name__}, not a block's record with its "
-                         "checksums")
+        kind = ("an object without checksums" if isinstance(marker, dict) else
+                {list: "an array", str: "a string", type(None): "null"}.get(type(marker), "a number"))
+        raise ValueError(f"it holds {kind}, not a block's record with its checksums")
     return marker
