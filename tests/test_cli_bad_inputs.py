@@ -815,6 +815,9 @@ def test_a_panorama_too_large_to_render_is_refused_before_any_work(tmp_path, dem
     ({"frames": [{"image": "f.png", "pan_deg": 0.0, "tilt_deg": 0.0},
                  {"image": "f.png", "pan_deg": 30.0, "tilt_deg": 0.0}]},
      "frames[1] and frames[0] both name f.png"),
+    ({"frames": [{"image": "f.png", "pan_deg": 0.0, "tilt_deg": 0.0},
+                 {"image": "./f.png", "pan_deg": 40.0, "tilt_deg": 0.0}]},
+     "frames[1] and frames[0] both name f.png ('f.png' and './f.png')"),
 ])
 def test_a_focal_length_pan_or_frame_that_cannot_be_is_refused(tmp_path, changes, field):
     """fx = 1e-6 px (a focal length in metres) made a profile of no observed bins, exit 0; a pan

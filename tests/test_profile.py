@@ -363,3 +363,51 @@ def test_stitch_fails_clearly_on_featureless_frames():
     flat = [np.full((150, 200, 3), 128, np.uint8)] * 3
     with pytest.raises(DetectionError, match="stitching failed"):
         stitch_panorama(acq, images=flat)
+
+
+def test_stitch_takes_frames_in_pan_order_however_they_are_listed(tmp_path):
+    """Only neighbours in the sequence are matched: frames listed out of pan order were dropped
+    as matching none (2 of 4 stitched, 'no good match with its neighbours'). Listed in any
+    order, the same frames now make the same panorama."""
+    import json
+    import shutil
+
+    from skyfix.formats import Truth, load_acquisition
+    from skyfix.simulate import simulate_acquisition
+    from skyfix.stitch import stitch_panorama
+
+    z, _, _ = gaussian_hills(241, 10.0, 25, np.random.default_rng(3), amp_m=(40.0, 200.0))
+    dem = Dem.from_array(z, 10.0)
+    c = 120 * 10.0
+    acq = simulate_acquisition(dem, Truth(c, c, 100.0), tmp_path / "in_order", frames=4,
+                               pan_start_deg=-60.0, tilt_deg=0.0, seed=2)
+    shuffled = tmp_path / "shuffled"
+    shutil.copytree(acq, shuffled)
+    doc = json.loads((shuffled / "acquisition.json").read_text())
+    doc["frames"] = [doc["frames"][k] for k in (2, 0, 3, 1)]  # pans 0, -60, 30, -30
+    (shuffled / "acquisition.json").write_text(json.dumps(doc))
+    pano_a, _, spec_a, info_a = stitch_panorama(load_acquisition(acq))
+    pano_b, _, spec_b, info_b = stitch_panorama(load_acquisition(shuffled))
+    assert sorted(info_a["frames_stitched"]) == sorted(info_b["frames_stitched"]) == [0, 1, 2, 3]
+    assert info_b["frames_dropped"] == []
+    # OpenCV's stitching differs by a few hundredths of a degree from run to run (its threads)
+    assert spec_b.azimuth_left_deg == pytest.approx(spec_a.azimuth_left_deg, abs=0.3)
+    assert spec_b.hfov_deg == pytest.approx(spec_a.hfov_deg, abs=0.6) and pano_b.shape[1] > 0
+    # the indices the info gives are the acquisition's own: frame 1 there is the pan of -60 deg
+    for k_b, k_a in (("1", "0"), ("3", "1"), ("0", "2"), ("2", "3")):
+        assert info_b["pan_estimated_deg"][k_b] == pytest.approx(info_a["pan_estimated_deg"][k_a],
+                                                                 abs=0.3)
+
+
+@pytest.mark.parametrize("left", [-180.0, 0.0, 370.0, -720.0])
+@pytest.mark.parametrize("width", [360, 720])
+def test_a_full_turn_panorama_observes_every_bin_wherever_its_seam_lies(left, width):
+    """The bin between the last column and the first was left empty (bin 180 for a panorama
+    whose left edge is -180 deg): a full turn's skyline runs on across its seam."""
+    sky = Skyline(rows=np.full(width, 49.5), width=width, height=120)
+    p = panorama_profile(PanoramaSpec("p.png", left, 360.0, 30.0, 60.0), sky)
+    assert np.isfinite(p.elevation_deg).all()
+    np.testing.assert_allclose(p.elevation_deg, 30.0 - 50.0 * 60.0 / 120.0)
+    half = panorama_profile(PanoramaSpec("p.png", -90.0, 180.0, 30.0, 60.0),
+                            Skyline(rows=np.full(width // 2, 49.5), width=width // 2, height=120))
+    assert 178 <= np.isfinite(half.elevation_deg).sum() <= 181  # a half turn is not closed

@@ -276,9 +276,14 @@ def acquisition_from_dict(data: dict, root) -> Acquisition:
                              "mast tilt, up positive")
             pan = in_range(number_field(f, "pan_deg", where), -MAX_PAN_DEG, MAX_PAN_DEG,
                            f"{where}.pan_deg", "mast pan, clockwise from forward")
-            first = next((k for k, fr in enumerate(frames) if fr.image == f["image"]), None)
-            if first is not None:  # one picture at two pans made a 360 deg profile of copies
-                raise AcquisitionError(f"{where} and frames[{first}] both name {f['image']}: each "
+            # one picture at two pans made a 360 deg profile of copies; compared as files, so
+            # that "./a.png" or a link is the same picture as "a.png"
+            same = (root / f["image"]).resolve()
+            first = next((k for k, fr in enumerate(frames) if (root / fr.image).resolve() == same),
+                         None)
+            if first is not None:
+                raise AcquisitionError(f"{where} and frames[{first}] both name {same.name} "
+                                       f"({frames[first].image!r} and {f['image']!r}): each "
                                        "frame is its own image")
             frames.append(Frame(f["image"], pan, tilt))
         warn_ignored("frames[0]" if len(frames) == 1 else "frames", ignored, FRAME_FIELDS)

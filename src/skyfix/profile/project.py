@@ -151,6 +151,10 @@ def panorama_profile(spec: PanoramaSpec, skyline: Skyline, *, azimuth_bins: int 
         az, el = np.where(np.isfinite(el), az2, np.nan), np.where(np.isfinite(el), el2, np.nan)
     az = np.mod(az, 360.0)
     conf = skyline.confidence if skyline.confidence is not None else np.ones(rows.size)
+    if spec.hfov_deg >= 360.0 - 1e-9:
+        # a full turn: its last column joins its first across the seam (the bin between them was
+        # left empty, wherever the seam lay)
+        az, el, conf = np.append(az, az[0]), np.append(el, el[0]), np.append(conf, conf[0])
     max_step = 2.0 * max(spec.hfov_deg / w, 360.0 / azimuth_bins)
     v, wgt = sample_polyline(az, el, azimuth_bins, weight=np.clip(conf, 0, 1), max_step_deg=max_step)
     pix_deg = spec.vfov_deg / h

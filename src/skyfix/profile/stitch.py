@@ -149,21 +149,51 @@ def _match(feats, seq, range_width, n, wrap):
     return pairs
 
 
+def pan_order(pans_deg) -> np.ndarray:
+    """The frames' indices in pan order [deg], starting after the widest gap between pans round
+    the circle: a sequence whose neighbours overlap, however the acquisition lists them."""
+    p = np.mod(np.asarray(pans_deg, float), 360.0)
+    o = np.argsort(p, kind="stable")
+    gaps = np.diff(np.r_[p[o], p[o][0] + 360.0])
+    return np.roll(o, -((int(np.argmax(gaps)) + 1) % o.size))
+
+
 def stitch_panorama(acq: Acquisition, images: list[np.ndarray] | None = None, *, use_nominal: bool = True,
                     overlays: list[np.ndarray] | None = None):
     """Equirectangular panorama of a frame set in the levelled body frame.
 
     Returns ``(rgb, valid_mask, spec, info)``: ``spec`` is the :class:`PanoramaSpec` of the result
     (azimuth of the left edge, fields of view, top elevation, all [deg]) and ``info`` records the
-    stitched and dropped frames, the pairs and the estimated pans; ``info["overlay"]`` holds
-    ``overlays`` (per-frame RGB images) warped and cropped the same way, when given.
+    stitched and dropped frames, the pairs and the estimated pans (frame indices as the
+    acquisition lists them); ``info["overlay"]`` holds ``overlays`` (per-frame RGB images) warped
+    and cropped the same way, when given.
     use_nominal : start the bundle adjustment from the nominal pointing (else features alone)
+
+    The frames are stitched in pan order (:func:`pan_order`): only neighbours in the sequence
+    are matched, and frames listed out of order were dropped as matching none.
     """
+    from dataclasses import replace
+
+    order = pan_order([f.pan_deg for f in acq.frames])
+    if images is None:
+        images = [read_rgb(acq.image_path(f.image)) for f in acq.frames]
+    pano, valid, spec, info = _stitch_in_order(
+        replace(acq, frames=tuple(acq.frames[i] for i in order)), [images[i] for i in order],
+        use_nominal, None if overlays is None else [overlays[i] for i in order])
+    back = [int(i) for i in order]  # sequence index -> the acquisition's
+    info["frames_stitched"] = [back[k] for k in info["frames_stitched"]]
+    info["frames_dropped"] = sorted(back[k] for k in info["frames_dropped"])
+    info["pan_estimated_deg"] = {str(back[int(k)]): v for k, v in info["pan_estimated_deg"].items()}
+    for pair in info["pairs"]:
+        pair["i"], pair["j"] = back[pair["i"]], back[pair["j"]]
+    return pano, valid, spec, info
+
+
+def _stitch_in_order(acq: Acquisition, images: list[np.ndarray], use_nominal: bool, overlays):
+    """:func:`stitch_panorama` of frames listed in pan order."""
     import cv2
 
     cam = acq.camera
-    if images is None:
-        images = [read_rgb(acq.image_path(f.image)) for f in acq.frames]
     images = [_undistorted(acq, im) for im in images]
     n = len(images)
     pans = np.array([f.pan_deg for f in acq.frames])
