@@ -173,14 +173,16 @@ def acquisition_summary(folder) -> str:
     import json
     from pathlib import Path
 
+    from ..formats import read_skyline_json
+
     acq = json.loads((Path(folder) / "acquisition.json").read_text())
     t, sim = acq["truth"], acq["simulation"]
     images = sim["images"]
     n = len(images)
     # the widths from the truth skylines beside the images (acquisition.json gives a panorama's
     # field of view, not its pixels)
-    widths = [json.loads((Path(folder) / (Path(i["image"]).stem + ".skyline.json")).read_text())
-              ["width"] for i in images]
+    widths = [read_skyline_json(Path(folder) / (Path(i["image"]).stem + ".skyline.json")).width
+              for i in images]
     if "panorama" in acq:
         what = f"a panorama {widths[0]} px wide"
     else:

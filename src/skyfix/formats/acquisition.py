@@ -259,6 +259,7 @@ def acquisition_from_dict(data: dict, root) -> Acquisition:
         if not isinstance(frames_raw, list) or not frames_raw:
             raise AcquisitionError("acquisition.json: 'frames' must be a non-empty list")
         ignored = []  # a tool's own field on every frame is one warning, not one per frame
+        seen: dict[Path, int] = {}  # each image file, resolved, -> the first frame naming it
         for i, f in enumerate(frames_raw):
             where = f"frames[{i}]"
             if not isinstance(f, dict) or not isinstance(f.get("image"), str):
@@ -279,9 +280,8 @@ def acquisition_from_dict(data: dict, root) -> Acquisition:
             # one picture at two pans made a 360 deg profile of copies; compared as files, so
             # that "./a.png" or a link is the same picture as "a.png"
             same = (root / f["image"]).resolve()
-            first = next((k for k, fr in enumerate(frames) if (root / fr.image).resolve() == same),
-                         None)
-            if first is not None:
+            first = seen.setdefault(same, i)
+            if first != i:
                 raise AcquisitionError(f"{where} and frames[{first}] both name {same.name} "
                                        f"({frames[first].image!r} and {f['image']!r}): each "
                                        "frame is its own image")

@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 
+from ..north import wrap_deg
+
 
 #: the share of a normal error within its 1-sigma: what a reported 1-sigma claims
 ONE_SIGMA_SHARE = math.erf(1.0 / math.sqrt(2.0))
@@ -69,7 +71,7 @@ def rival_heading_sigma(sigma: float, confidence: float, rival_offsets_deg) -> f
     heading), and the sigma then hardly widens; a narrow arc's rivals can face anywhere (a
     7.5 deg arc's fix 103 deg off came with 0.81 deg at confidence 0.03, its rivals at +3 and
     -103 deg). Without rivals, ``sigma``: nothing else was found in what was searched."""
-    offs = [abs((float(o) + 180.0) % 360.0 - 180.0) for o in rival_offsets_deg]
+    offs = [abs(float(wrap_deg(o))) for o in rival_offsets_deg]
     offs = [o for o in offs if math.isfinite(o)]
     if not (math.isfinite(sigma) and sigma >= 0.0) or not offs:
         return float(sigma)
