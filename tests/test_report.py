@@ -133,3 +133,42 @@ def test_results_csv_gives_both_norths_and_reads_an_older_file(tmp_path):
                    "c,REF,2,0,0,240.75,0.1,0,240.78,ok\n")
     (back,) = read_results_csv(old)
     assert back.fix_grid_heading_deg == 240.78 and back.heading_error_deg == pytest.approx(0.03)
+
+
+def test_every_table_counts_the_error_beyond_the_misregistration():
+    """A map shifted 3 m east and a fix 0.3 m from where the map puts the truth: 0.3 m in every
+    table, figure and calibration line, as "correct" (within 1 m) counts it; results.csv keeps
+    the plain 3.3 m beside it. The summary said 3.3 m against a 1 m bar for a case it called
+    correct."""
+    from dataclasses import replace
+
+    from skyfix.evaluate import calibration_row
+    from skyfix.report import case_rows
+
+    r = replace(_case("DEMERR", 3.3, 0.1, 0.95, scenario=2), map_offset_x_m=3.0)
+    assert r.correct and r.position_error_m == pytest.approx(3.3)
+    row = summary_rows([r])[0]
+    assert row["pos_err_med_m"] == pytest.approx(0.3) and row["err_x_med_m"] == pytest.approx(0.3)
+    assert row["pos_err_p95_m"] == pytest.approx(0.3) and row["err_y_med_m"] == pytest.approx(0.0)
+    assert case_rows([r])[0]["position_error_m"] == pytest.approx(0.3)
+
+    class Dem:
+        source = "/x/sierra.tif"
+
+    line = calibration_row(r, {"log_ratio": 1.0}, Dem())
+    assert line["err"] == pytest.approx(0.3) and line["correct"] is True
+
+
+def test_scenario_3_has_no_position_columns_and_counts_failures_at_their_offset():
+    """Scenario 3's position is the rough one it was given (its drawn offset), not a result; a
+    case that failed counts in its offset's cases as within neither bar (the 20 m row read
+    0 cases and the 10 m row 100 % with one of two failed)."""
+    rs = [_case("REF", 10.0, 0.5, 0.9, scenario=3, offset=10.0),
+          _case("REF", 10.0, 0.0, 0.1, scenario=3, offset=10.0, status="no skyline"),
+          _case("REF", 20.0, 0.0, 0.1, scenario=3, offset=20.0, status="no skyline")]
+    row = summary_rows(rs)[0]
+    assert all(math.isnan(row[k]) for k in ("err_x_med_m", "pos_err_med_m", "pos_err_p95_m"))
+    by = {r["prior_offset_m"]: r for r in heading_vs_prior_rows(rs)}
+    assert by[10.0]["cases"] == 2 and by[10.0]["failed"] == 1
+    assert by[10.0]["within_1deg_pct"] == 50.0 and by[10.0]["head_err_med_deg"] == pytest.approx(0.5)
+    assert by[20.0]["cases"] == 1 and by[20.0]["within_2deg_pct"] == 0.0
