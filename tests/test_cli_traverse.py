@@ -47,6 +47,10 @@ def test_a_simulated_traverse_is_fused_within_the_truth(simulated, fused):
     gj = json.loads((out / "track.geojson").read_text())
     kinds = [f["geometry"]["type"] for f in gj["features"]]
     assert kinds == ["LineString"] + ["Point"] * 4
+    # each point carries its stop's record (every heading with its grid heading and convergence)
+    for f, r_ in zip(gj["features"][1:], rows):
+        assert f["properties"] == {k: v for k, v in r_.items() if k != "filter"}
+        assert {"grid_heading_deg", "meridian_convergence_deg", "reason"} <= set(f["properties"])
     assert (out / "track.png").stat().st_size > 10_000
     # rerun: everything is written, nothing is measured again, the file is unchanged
     before = (out / "stops.jsonl").read_text()

@@ -417,3 +417,24 @@ def test_a_dem_search_as_wide_as_the_traverse_asks_is_not_refused():
         step = dem_search_config(cfg, r).grid_step_m
         assert step == (cfg.grid_step_m if r <= 100.0 else pytest.approx(r / 50.0))
         assert prior_grid(dem, c, r, step)[0].size <= MAX_PRIOR_GRID_POINTS
+
+
+def test_a_position_fix_that_fails_outright_still_leaves_the_stop_its_heading(tmp_path):
+    """A skyline of 12 bins is too narrow for locate's search (20 at least) but gives a heading:
+    the stop keeps its heading, the fix stays owed, and nobody is asked for a skyline the stop
+    has (it was marked 'none' with a 'no usable skyline' request)."""
+    from skyfix.errors import ParameterError
+
+    def heading(k, x, y, prior, window, position_sigma_m=None):
+        return Measurement(0.0, 0.1, 0.99, skyline_distance_m=3000.0)
+
+    def fix(k, x, y, r):
+        if k >= 2:
+            raise ParameterError("the profile has 12 observed azimuth bins; at least 20 are needed")
+        return Measurement(0.0, 0.1, 0.99, 0.0, 50.0 * k, 1.0)
+
+    rows = run_traverse(_straight(4), Measure(heading, fix), tmp_path)
+    last = rows[-1]  # the last stop is due a fix
+    assert last["attempted"] == "position" and last["update"] == "heading"
+    assert last["reason"].startswith("position fix failed (the profile has 12 observed")
+    assert last["operator_request"] is None and last["fix_owed"]

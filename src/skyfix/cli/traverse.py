@@ -129,8 +129,11 @@ def traverse(traverse_dir, dem_paths, db_path, out, leg_length_m, min_confidence
 
 
 def write_track(out, rows, crs_wkt) -> None:
-    """``track.geojson``: the fused track as a LineString and a Point per stop (lon/lat WGS 84 on
-    Earth, the body's own geodetic coordinates elsewhere; work-CRS x, y in the properties)."""
+    """``track.geojson``: the fused track as a LineString (from two stops: GeoJSON has no line of
+    one position) and a Point per stop (lon/lat WGS 84 on Earth, the body's own geodetic
+    coordinates elsewhere) whose properties are the stop's record in ``stops.jsonl`` but its
+    filter state: work-CRS x, y, the heading from true north with its grid heading and
+    convergence (the conventions ask all three of every heading), why and what was measured."""
     from .._io import write_json
     from ..pose.fix import crs_and_lonlat
     from .provenance import with_body
@@ -139,14 +142,14 @@ def write_track(out, rows, crs_wkt) -> None:
     for r in rows:
         _, lon, lat = crs_and_lonlat(crs_wkt, r["x"], r["y"])
         line.append([lon, lat])
-        props = {k: r[k] for k in ("stop", "x", "y", "heading_deg", "position_sigma_m",
-                                   "heading_sigma_deg", "update", "confidence", "operator_request")}
+        props = {k: v for k, v in r.items() if k != "filter"}
         feats.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon, lat]},
                       "properties": props})
-    track = {"type": "Feature", "geometry": {"type": "LineString", "coordinates": line},
-             "properties": {"name": "fused track", "stops": len(rows)}}
-    write_json(out / "track.geojson", with_body({"type": "FeatureCollection",
-                                                 "features": [track] + feats}, crs_wkt))
+    if len(line) >= 2:
+        feats.insert(0, {"type": "Feature", "geometry": {"type": "LineString", "coordinates": line},
+                         "properties": {"name": "fused track", "stops": len(rows)}})
+    write_json(out / "track.geojson", with_body({"type": "FeatureCollection", "features": feats},
+                                                crs_wkt))
 
 
 @click.command("simulate-traverse")

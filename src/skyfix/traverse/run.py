@@ -356,20 +356,29 @@ def run_traverse(trav: Traverse, measure: Measure, out_dir, *, config: TraverseC
                     max(measured.heading_sigma_deg, config.heading_sigma_floor_deg)))
                 update, conf = "position", measured.confidence
             else:
-                if kind == "position":
-                    measured, retried = _attempt_fix(measure, k, filt, config)
+                fix_failed = None
+                try:
+                    if kind == "position":
+                        measured, retried = _attempt_fix(measure, k, filt, config)
+                    else:
+                        measured, retried = _attempt_heading(measure, k, filt, config)
+                except SkyfixError as e:
+                    if kind != "position":
+                        raise
+                    # a skyline too narrow for a search (under 20 bins) still gives a heading
+                    fix_failed = f"position fix failed ({str(e).splitlines()[0]})"
                 else:
-                    measured, retried = _attempt_heading(measure, k, filt, config)
-                conf = measured.confidence
-                update, reason, nis = _apply(filt, kind, measured, config)
-                if kind == "position" and update == "rejected":
+                    conf = measured.confidence
+                    update, reason, nis = _apply(filt, kind, measured, config)
+                    if kind == "position" and update == "rejected":
+                        fix_failed = f"position fix rejected ({reason})"
+                if fix_failed is not None:
                     # the fix stays owed, but the heading need not drift meanwhile: the stop's
                     # skyline still gives one at the predicted position
-                    fix_reason = reason
                     measured, _ = _attempt_heading(measure, k, filt, config)
                     conf = measured.confidence
                     update, reason, nis = _apply(filt, "heading", measured, config)
-                    reason = (f"position fix rejected ({fix_reason}); heading "
+                    reason = (f"{fix_failed}; heading "
                               + ("taken" + (f": {reason}" if reason else "") if update == "heading"
                                  else f"rejected too: {reason}"))
         except SkyfixError as e:
