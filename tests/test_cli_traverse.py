@@ -19,6 +19,17 @@ def simulated(tmp_path_factory):
     return dem, trav
 
 
+def test_the_simulated_heading_drift_is_per_100_m_whatever_the_spacing(simulated):
+    """--heading-drift-deg-per-100m (0.5 by default) is a random walk: at 50 m stops each step's
+    sigma is 0.5 sqrt(0.5) = 0.354 deg, so that two steps make 0.5 deg over 100 m (it was
+    0.5 * 50 / 100 = 0.25 a step: 0.35 deg over 100 m)."""
+    _, trav = simulated
+    steps = [json.loads(line) for line in (trav / "odometry.jsonl").read_text().splitlines()]
+    assert steps and all(s["sigma_heading_deg"] == pytest.approx(0.5 * math.sqrt(0.5))
+                         for s in steps)
+    assert math.sqrt(sum(s["sigma_heading_deg"] ** 2 for s in steps[:2])) == pytest.approx(0.5)
+
+
 @pytest.fixture(scope="module")
 def fused(simulated, tmp_path_factory):
     """The simulated traverse fused once (the tests that rerun into it copy it first)."""

@@ -162,7 +162,8 @@ def write_track(out, rows, crs_wkt) -> None:
 @click.option("--distance-drift", type=float, default=0.02, show_default=True,
               help="Odometry's 1-sigma error per step, as a share of the step.")
 @click.option("--heading-drift-deg-per-100m", type=float, default=0.5, show_default=True,
-              help="Odometry's heading 1-sigma error per 100 m [deg].")
+              help="Odometry's heading 1-sigma error over 100 m [deg], a random walk (per step: "
+                   "this times the square root of the step over 100 m).")
 @click.option("--mode", type=click.Choice(["frames", "panorama"]), default="frames", show_default=True)
 @click.option("--pano-size", type=int, nargs=2, default=(2048, 512), show_default=True, metavar="W H")
 @click.option("--leg-length-m", type=float, default=1000.0, show_default=True,
