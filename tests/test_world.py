@@ -149,3 +149,107 @@ def test_a_world_dem_short_of_the_map_is_named_before_any_rendering(map_and_worl
     assert r.exit_code == 0, r.output
     acq = json.loads((tmp_path / "in" / "case_000" / "acquisition.json").read_text())
     assert acq["simulation"]["world"]["source"].endswith("quarter.tif")
+
+
+def test_a_world_dem_with_no_data_at_a_case_is_named_before_any_rendering(map_dem, tmp_path):
+    """A world whose grid covers the area but holds no data over its west half (a reprojected
+    DEM's empty corners): refused before rendering, naming it and the first position without a
+    height (it failed at the first such case, as off "the DEM")."""
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+    from skyfix.dem import Dem, write_dem
+
+    z = map_dem.z.copy()
+    z[:, :100] = np.nan
+    m = write_dem(tmp_path / "map.tif", map_dem)
+    east = write_dem(tmp_path / "east.tif", Dem(z, map_dem.x0, map_dem.y0, map_dem.dx, map_dem.dy,
+                                                 map_dem.crs_wkt, map_dem.crs_name))
+    r = CliRunner().invoke(cli, ["simulate-set", str(m), "--set", "REF", "--cases", "6",
+                                 "--frames", "1", "--camera", "wide", "--world-dem", str(east),
+                                 "-o", str(tmp_path / "set")])
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert "the world DEM (east.tif) has no height at" in r.output and "case positions" in r.output
+    assert not (tmp_path / "set").exists()
+
+
+def test_overwrite_never_deletes_a_world_dem_inside_out(map_and_world_files, tmp_path):
+    import shutil
+
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+
+    m, quarter = map_and_world_files
+    out = tmp_path / "out"
+    out.mkdir()
+    inside = shutil.copy(quarter, out / "world.tif")
+    r = CliRunner().invoke(cli, ["simulate-set", str(m), "--set", "REF", "--cases", "1",
+                                 "--world-dem", str(inside), "-o", str(out), "--overwrite"])
+    assert r.exit_code == 2 and "lies inside --out" in r.output, r.output
+    assert (out / "world.tif").is_file()
+
+
+def test_out_as_the_current_folder_or_a_tiny_pan_step_is_refused_at_once(map_and_world_files,
+                                                                          tmp_path, monkeypatch):
+    """-o . rendered into itself and failed after the rendering; a pan step of 1e-9 deg built
+    its angles until the memory ran out (killed, no message)."""
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+
+    m, _ = map_and_world_files
+    work = tmp_path / "here"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    args = ["simulate", str(m), "--x", "501000", "--y", "4198000", "--yaw-deg", "10"]
+    for out in (".", str(tmp_path)):
+        r = CliRunner().invoke(cli, args + ["--frames", "1", "-o", out])
+        assert r.exit_code == 2 and "is the current folder or holds it" in r.output, r.output
+    r = CliRunner().invoke(cli, args + ["--pan-step-deg", "1e-9", "-o", "sim"])
+    assert r.exit_code == 2 and "more than 360" in r.output, r.output
+    assert list(work.iterdir()) == []
+
+
+def test_overwrite_through_a_symbolic_link_replaces_its_target(map_and_world_files, tmp_path):
+    """The link stays and its target gets the new output (the link itself was swapped for a
+    folder, the run said it failed, and a hidden link to the old target was left behind)."""
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+
+    m, _ = map_and_world_files
+    real = tmp_path / "real"
+    real.mkdir()
+    (real / "old.txt").write_text("x")
+    link = tmp_path / "link"
+    link.symlink_to(real)
+    r = CliRunner().invoke(cli, ["simulate", str(m), "--x", "501000", "--y", "4198000",
+                                 "--yaw-deg", "10", "--frames", "1", "--camera", "wide",
+                                 "-o", str(link), "--overwrite"])
+    assert r.exit_code == 0, r.output
+    assert link.is_symlink() and (real / "acquisition.json").is_file()
+    assert not (real / "old.txt").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "real"]  # no stray hidden link
+
+
+def test_the_world_beside_a_void_keeps_the_maps_heights():
+    """Void cells took the whole DEM's mean before the bicubic refinement, which reaches two cells
+    into them: beside a reprojected DEM's empty corners the world stood ~200 m off the map. With
+    every error off, the world is the map refined: within a few metres of the map's bilinear
+    surface everywhere it has a height."""
+    from skyfix.dem import Dem
+
+    y, x = np.mgrid[0:80, 0:80] * 20.0
+    z = 3000.0 + 2.0 * x + 100.0 * np.sin(y / 300.0)  # high terrain: the mean of it all is far off
+    z[:, :30] = np.nan
+    z[:20, :] = np.nan
+    m = Dem.from_array(z, 20.0)
+    w = world_dem(m, MapErrors(detail_rms_m=0.0, height_rms_m=0.0, spikes_per_km2=0.0,
+                               shift_m=0.0), seed=1)
+    r = np.random.default_rng(0)
+    xs, ys = r.uniform(*m.bounds[0::2], 20000), r.uniform(*m.bounds[1::2], 20000)
+    a, b = w.height_at(xs, ys), m.height_at(xs, ys)
+    both = np.isfinite(a) & np.isfinite(b)
+    assert both.sum() > 5000
+    assert float(np.abs(a - b)[both].max()) < 15.0

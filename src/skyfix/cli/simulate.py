@@ -150,7 +150,9 @@ def simulate_set(dem, name, cases, seed, area, mode, camera, pano_size, frames, 
                   planet=planet, seed=seed, frames=frames, pano_size=pano_size)
     if map_errors and world_dem:
         raise ParameterError("give --map-errors or --world-dem, not both")
-    _check_out(out, overwrite, dem)
+    for p in (dem, world_dem):  # --overwrite replaces --out whole: neither may lie inside it
+        if p is not None:
+            _check_out(out, overwrite, p)
     d = load_dem(dem, crs=crs)
     world = None
     if world_dem is not None:
@@ -207,8 +209,10 @@ def _check_out(out, overwrite: bool, dem=None) -> None:
     from pathlib import Path
 
     from ..errors import OutputExistsError, ParameterError
+    from ..simulate.folders import check_not_current
 
     p = Path(out)
+    check_not_current(p)
     if p.exists() and not p.is_dir():
         raise OutputExistsError(f"{p} exists and is not a folder: choose another --out")
     if p.is_dir() and any(p.iterdir()) and not overwrite:

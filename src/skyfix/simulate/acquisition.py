@@ -54,6 +54,10 @@ PANO_ELEVATION_TOP_DEG, PANO_VFOV_DEG = 45.0, 90.0
 MAX_PANO_PIXELS = 64 * 10**6
 
 
+#: most frames one acquisition may have: one a degree of a full turn
+MAX_FRAMES = 360
+
+
 def frame_pans(camera: Camera, frames: int | None = None, pan_start_deg: float | None = None,
                pan_step_deg: float | None = None) -> list[float]:
     """Mast pan angles [deg] of a frame set overlapping by about a third of a frame.
@@ -67,6 +71,11 @@ def frame_pans(camera: Camera, frames: int | None = None, pan_start_deg: float |
     n = int(frames) if frames is not None else int(math.ceil(360.0 / step - 1e-9))
     if n < 1:
         raise ParameterError(f"need at least one frame, got {n}")
+    if n > MAX_FRAMES:
+        # a step of 1e-9 deg built its list of angles until the memory ran out, with no message
+        raise ParameterError(f"{n} frames (a pan step of {step:g} deg) is more than {MAX_FRAMES}: "
+                             "one a degree already overlaps far more than projection or "
+                             "stitching needs; give a pan step of 1 deg or more")
     if (n - 1) * step >= 360:
         raise ParameterError(f"{n} frames every {step:g} deg span more than 360 deg: use fewer frames")
     if pan_start_deg is None:

@@ -12,12 +12,25 @@ from contextlib import contextmanager
 from glob import escape as glob_escape
 from pathlib import Path
 
-from ..errors import OutputExistsError
+from ..errors import OutputExistsError, ParameterError
+
+
+def check_not_current(out) -> None:
+    """Refuse an ``out`` that is the current folder or one holding it: the output is rendered
+    beside ``out`` and swapped into its place, and ``-o .`` rendered into itself and was refused
+    only after the rendering (or, with --overwrite, could not be swapped)."""
+    o, cwd = Path(out).resolve(), Path.cwd().resolve()
+    if o == cwd or o in cwd.parents:
+        raise ParameterError(f"--out {out} is the current folder or holds it: the output replaces "
+                             "--out whole; give a folder of its own, e.g. -o sim")
 
 
 def check_out_folder(out, overwrite: bool) -> Path:
-    """Refuse an ``out`` that is a file, or a non-empty folder without ``overwrite``; touch nothing."""
-    out = Path(out)
+    """Refuse an ``out`` that is a file, or a non-empty folder without ``overwrite``; touch nothing.
+    Returns it resolved: a symbolic link's target is what gets replaced (the link kept), not the
+    link (swapped for a folder, and its old target left as a stray hidden link)."""
+    check_not_current(out)
+    out = Path(out).resolve()
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out} exists and is not a folder: choose another --out")
     if out.is_dir() and any(out.iterdir()) and not overwrite:

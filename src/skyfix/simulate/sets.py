@@ -19,7 +19,7 @@ from ..planets import resolve_planet
 from .acquisition import (PANO_HEIGHT, PANO_WIDTH, check_render_options, check_seed,
                           simulate_acquisition)
 from .folders import check_out_folder, staged_folder
-from .world import MapErrors, check_world_covers, world_dem, world_record
+from .world import MapErrors, check_world_covers, check_world_heights, world_dem, world_record
 
 log = logging.getLogger(__package__)
 
@@ -206,6 +206,9 @@ def simulate_set(dem: Dem, name: str, cases: int, seed: int, out, *, area=None,
                            "a smaller --area inside both")
     plans = plan_set(dem, name, cases, seed, area=area, camera=camera, mode=mode,
                      camera_height_m=camera_height_m, planet=planet)
+    if world is not None:
+        check_world_heights(world, [p["truth"].x for p in plans], [p["truth"].y for p in plans],
+                            "case positions", "a smaller --area inside its data")
     if map_errors is None and str(name).upper() in MAP_ERROR_SETS and world is None:
         map_errors = MapErrors()
     sim_meta = world_record(map_errors, seed, world)

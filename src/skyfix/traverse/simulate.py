@@ -153,7 +153,8 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
     from ..planets import resolve_planet
     from ..simulate import as_conditions, check_render_options, check_seed, simulate_acquisition
     from ..simulate.conditions import check_planet
-    from ..simulate.world import (check_world_covers, recorded_map_offset, world_dem,
+    from ..simulate.world import (check_world_covers, check_world_heights, recorded_map_offset,
+                                  world_dem,
                                   world_record)
     from .run import convergence_function
 
@@ -188,6 +189,8 @@ def simulate_traverse(dem, out, *, length_m=3000.0, stop_spacing_m=50.0, seed=0,
         check_world_covers(world, (plan.x.min(), plan.y.min(), plan.x.max(), plan.y.max()),
                            "the traverse's stops on the map", "a shorter traverse (--length-m) "
                            "or another --seed")
+        check_world_heights(world, plan.x, plan.y, "stops", "a shorter traverse (--length-m) or "
+                            "another --seed")
     bad = [k for k in stop_conditions if not 0 <= k < n]
     if bad:
         raise ParameterError(f"stop conditions for stops {bad}: the traverse has stops 0-{n - 1} "
