@@ -1,8 +1,10 @@
 """What the map's own height error does to a fit: the covariance it gives the answer.
 
 Every real DEM is metres off the terrain. Model: the error is ``sigma`` [m] rms, correlated as
-``exp(-r / MAP_CORRELATION_M)`` over ground distance ``r`` (the simulator's map errors are of this
-kind: :mod:`skyfix.simulate.world`). A skyline point ``d`` away whose terrain is off by ``e_sky``,
+``exp(-r / MAP_CORRELATION_M)`` over ground distance ``r``. The simulator's map errors
+(:mod:`skyfix.simulate.world`) have the same rms but are smoother (Gaussian-blurred, 1/e at 300 m):
+within 150 m this model credits them 2-4x the height difference they have, so the sigmas are
+conservative there, not the model's own test. A skyline point ``d`` away whose terrain is off by ``e_sky``,
 seen from a camera whose ground is off by ``e_cam``, moves by ``g (e_sky - e_cam)`` in whatever the
 fit compares (``g = 1 / d`` rad in elevation, ``f / d`` px in an image row): a camera the map puts
 too low sees every ridge too high. A least-squares fit with Jacobian ``J`` and weights ``W`` then
