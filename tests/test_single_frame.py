@@ -299,6 +299,8 @@ def test_a_skyline_too_near_for_the_map_is_said(ridge_m, near):
     if near:
         # the sight line grazes the ridge's near flank, short of its crest
         assert 20 <= float(said[0].split("lies ")[1].split(" m")[0]) <= ridge_m and "229 m" in said[0]
+        # a profile's sigmas do not take --dem-sigma-m: the note does not say they allow for it
+        assert "not taken from --dem-sigma-m" in said[0] and "sigmas allow for it" not in said[0]
 
 
 def test_a_tilt_the_view_cannot_see_has_a_bounded_sigma(dem_path):

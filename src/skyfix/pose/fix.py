@@ -148,12 +148,15 @@ def prior_disagreement(pitch_deg, roll_deg, prior_pitch_deg, prior_roll_deg) -> 
 NEAR_SKYLINE_BAR_DEG = 0.5
 
 
-def near_skyline(skyline_distance_m, dem_sigma_m) -> tuple:
+def near_skyline(skyline_distance_m, dem_sigma_m, narrow: bool = True) -> tuple:
     """A note (a 1-tuple) when the skyline in view lies, in the median observed bin, nearer than
     ``dem_sigma_m / tan(NEAR_SKYLINE_BAR_DEG)`` [m] (229 m for 2 m), else (): the map's height
     error alone then moves it by more than that bar, and a frame looking up a slope a DEM cell or
     two away sees the DEM's own cell, not a landmark (single frames with map errors: 20 % of such
-    frames within 1 deg of heading, against 93-94 % of those with a farther skyline)."""
+    frames within 1 deg of heading, against 93-94 % of those with a farther skyline).
+    ``narrow``: the view was solved in the image plane, whose sigmas take ``dem_sigma_m``; a view
+    solved on its profile has sigmas calibrated on cases with map errors instead, and the note
+    says so (it named the option's degrees beside sigmas the option left unchanged)."""
     d = np.asarray(skyline_distance_m, float)
     d = d[np.isfinite(d)]
     if not (dem_sigma_m and dem_sigma_m > 0 and d.size):
@@ -162,8 +165,11 @@ def near_skyline(skyline_distance_m, dem_sigma_m) -> tuple:
     limit = dem_sigma_m / math.tan(math.radians(NEAR_SKYLINE_BAR_DEG))
     if med >= limit:
         return ()
+    sigmas = ("the sigmas allow for it" if narrow else
+              "a view solved on its profile has sigmas calibrated on cases with map errors, not "
+              "taken from --dem-sigma-m")
     return (f"the skyline in view lies {med:.0f} m away (median of the observed bins): the DEM's "
             f"height error ({dem_sigma_m:g} m, --dem-sigma-m) alone moves it by "
-            f"{math.degrees(math.atan(dem_sigma_m / max(med, 1e-3))):.1f} deg there, so the "
-            f"attitude is only as good as the map so near; a view of a skyline beyond "
-            f"{limit:.0f} m, or a finer DEM, holds it better",)
+            f"{math.degrees(math.atan(dem_sigma_m / max(med, 1e-3))):.1f} deg in elevation there, "
+            f"so the attitude is only as good as the map so near ({sigmas}); a view of a skyline "
+            f"beyond {limit:.0f} m, or a finer DEM, holds it better",)

@@ -206,7 +206,7 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     az = (np.flatnonzero(np.isfinite(q)) * 360.0 / n + yaw) % 360.0
     dists = hb.skyline_distance_m[0][np.rint(az * render_bins / 360.0).astype(int) % render_bins]
     notes = (*notes, *near_skyline(dists, IMAGE_PLANE_DEM_SIGMA_M if dem_sigma_m is None
-                                   else dem_sigma_m))
+                                   else dem_sigma_m, narrow=img is not None))
     grid = heading_360(yaw)
     conv = meridian_convergence_deg(dem.crs_wkt, x, y)
     crs, lon, lat = crs_and_lonlat(dem.crs_wkt, x, y)
