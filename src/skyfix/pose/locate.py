@@ -46,8 +46,8 @@ from .fix import UNKNOWN_HEADING_SIGMA_DEG, Fix, crs_and_lonlat, prior_disagreem
 from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
                           image_plane_attitude, view_span_deg)
 from .map_error import fit_map_covariance
-from .refine import inside_dem, prior_grid, refine_candidates
-from .scoring import clipped_costs, profile_arrays, render_points, robust_scores
+from .refine import inside_dem, prior_grid, refine_candidates, same_basin
+from .scoring import Renders, clipped_costs, profile_arrays, render_points, robust_scores
 
 
 log = logging.getLogger(__name__)
@@ -130,14 +130,23 @@ def _searched_share(db, prior_xy, prior_radius_m, x, y):
     return rect_share(xs.min() - h, xs.max() + h, ys.min() - h, ys.max() + h, x, y, disc=disc)
 
 
-def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg, model, key):
+def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg, model, key,
+            one_basin=None):
     """The best refined result, its uncertainties and confidence. results: refined dicts sorted
     by cost; rest: unrefined candidates (x, y, score, heading); sep [m]: how far another answer
-    must be to count as a rival."""
+    must be to count as a rival; one_basin(best, d): whether refined result d lies in the best
+    one's basin all the same (then it is no rival, and ``d["best_basin"]`` says so)."""
     best = results[0]
     far = lambda x, y: math.hypot(x - best["x"], y - best["y"]) > sep  # noqa: E731
-    other = min([d["cost"] for d in results[1:] if far(d["x"], d["y"])] +
-                [c[2] for c in rest if far(c[0], c[1])] or [np.inf])
+    # results are sorted by cost: the first rival is the cheapest, and the rest need no check
+    rival = np.inf
+    for d in results[1:]:
+        if far(d["x"], d["y"]):
+            d["best_basin"] = one_basin is not None and one_basin(best, d)
+            if not d["best_basin"]:
+                rival = d["cost"]
+                break
+    other = min([rival] + [c[2] for c in rest if far(c[0], c[1])])
     att = best["att"]
     obs = np.isfinite(q)
     corr = residual_correlation_bins(best["resid"])
@@ -336,8 +345,24 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
             st.result = f"best clipped cost {results[0]['cost']:.4f} deg^2" if results else "none"
         _log_refined(results)
         rest = list(cands[config.refine_candidates:])
+        renders = Renders(dem, camera_height_m=camera_height_m, planet=planet)
+
+        def one_basin(a, d):
+            same = same_basin(renders, q, (a["x"], a["y"], a["cost"]), (d["x"], d["y"], d["cost"]),
+                              a["att"], spacing_m=sep / 2.0, render_bins=config.render_bins,
+                              prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg,
+                              noise=noise, dem_sigma_m=config.dem_sigma_m)
+            if same:
+                log.info("(%.1f, %.1f) lies in the best answer's basin (no ridge of cost between "
+                         "them): not a rival", d["x"], d["y"])
+            return same
+        # Scenario 2 counts answers 1 m apart as rivals, and one flat valley can be wider: starts
+        # that stopped 1.1 m from the best on its floor made the confidence turn on the prior's
+        # last decimals (0.80 against 0.49 for priors 1 cm apart). A database's 5 m is wider
+        # than such floors (and its calibration cases were not rerun with the check).
         out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg,
-                      model, "locate" if db is not None else "locate_prior")
+                      model, "locate" if db is not None else "locate_prior",
+                      one_basin if db is None else None)
         if db is not None and (out["conf"] < config.retry_below or
                                out["feat"]["log_rms_over_noise"] > math.log(config.retry_rms_ratio)):
             known = [(d["x"], d["y"]) for d in results] + [(c[0], c[1]) for c in rest]
@@ -357,8 +382,9 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         best_s, psig, hsig, feat, conf = out["cost"], out["psig"], out["hsig"], out["feat"], out["conf"]
         psig, hsig = _with_map_share(psig, hsig, feat, dem, q, out, noise, config,
                                      camera_height_m, planet, prior_pitch_deg, prior_roll_deg)
+        # a start that stopped on the best answer's floor is that answer, not another candidate
         cand_out = [{"x": d["x"], "y": d["y"], "heading_deg": d["heading"],
-                     "score": d["cost"]} for d in results]
+                     "score": d["cost"]} for d in results if not d.get("best_basin")]
         cand_out += [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]} for c in rest]
         # candidates refined onto one answer are one candidate: the list gave a fix's own
         # position three times over as its rivals

@@ -150,6 +150,47 @@ def refine_candidate(dem, q, cx, cy, ch, step0, config, *, camera_height_m, plan
     return x, y, s, local, att, robust_cost(resid, noise), resid
 
 
+def refit_costs(renders, q, xs, ys, att, *, render_bins, prior_pitch_deg, prior_roll_deg, noise,
+                dem_sigma_m=None):
+    """The attitude-refitted cost at each position (xs, ys) [m]: a horizon rendered there
+    (``renders``, a :class:`~skyfix.pose.scoring.Renders`), yaw, pitch and roll fitted to it from
+    ``att`` (one Gauss-Newton start), and :func:`robust_cost` [deg^2] of the residual. Returns a
+    (cost, attitude, residual profile [deg]) per position; (inf, None, None) off the DEM."""
+    kw = dict(prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
+    xs, ys = np.atleast_1d(np.asarray(xs, float)), np.atleast_1d(np.asarray(ys, float))
+    ok = inside_dem(renders.dem, xs, ys, 0.0)
+    out = [(np.inf, None, None)] * xs.size
+    if ok.any():
+        els, dists = renders.horizons(xs[ok], ys[ok], render_bins)
+        for i, wi, di in zip(np.flatnonzero(ok), els, dists):
+            a = fit_attitude(q, wi, att.yaw_deg, att.pitch_deg, att.roll_deg, restarts_deg=(0.0,),
+                             **kw)
+            r = residual_profile(q, wi, a, **kw)
+            dist = body_distances(di, a.yaw_deg, q.size) if dem_sigma_m else None
+            out[i] = (robust_cost(r, noise, dist, dem_sigma_m), a, r)
+    return out
+
+
+def same_basin(renders, q, a, b, att, *, spacing_m, max_points=8, rise=0.01, **fit):
+    """Whether two refined answers a and b, each (x [m], y [m], cost [deg^2]), lie in one basin
+    of the attitude-refitted cost: no point on the segment between them (sampled at most
+    ``spacing_m`` [m] apart) costs more than ``1 + rise`` times the dearer end. Starts that
+    stop at different places on one flat floor (the polish stops where a step gains under 0.1 %)
+    are not rival answers; a ridge of cost between them is what makes two basins. A segment
+    needing more than ``max_points`` samples is not examined (False: a rival, as before).
+    ``att``: the attitude the fits start from; ``fit``: :func:`refit_costs`'s keywords."""
+    (xa, ya, ca), (xb, yb, cb) = a, b
+    k = math.ceil(math.hypot(xb - xa, yb - ya) / spacing_m)
+    if k > max_points + 1:
+        return False
+    if k < 2:
+        return True
+    t = np.arange(1, k) / k
+    costs = [c for c, _, _ in refit_costs(renders, q, xa + t * (xb - xa), ya + t * (yb - ya), att,
+                                          **fit)]
+    return bool(max(costs) <= max(ca, cb) * (1.0 + rise))
+
+
 def polish_position(dem, q, x, y, att, *, camera_height_m, planet, render_bins, prior_pitch_deg,
                      prior_roll_deg, noise, step_m=0.5, min_step_m=0.03, max_evals=120,
                      min_gain=1e-3, dem_sigma_m=None, basins=(), join_m=None):
@@ -176,21 +217,12 @@ def polish_position(dem, q, x, y, att, *, camera_height_m, planet, render_bins, 
     fits each) and would only find that answer again.
     Returns (x, y, attitude, cost, residual profile [deg]).
     """
-    kw = dict(prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
     renders = Renders(dem, camera_height_m=camera_height_m, planet=planet)
 
     def evaluate(xs, ys, a0):
-        xs, ys = np.asarray(xs, float), np.asarray(ys, float)
-        ok = inside_dem(dem, xs, ys, 0.0)
-        out = [(np.inf, None, None)] * xs.size
-        if ok.any():
-            els, dists = renders.horizons(xs[ok], ys[ok], render_bins)
-            for i, wi, di in zip(np.flatnonzero(ok), els, dists):
-                a = fit_attitude(q, wi, a0.yaw_deg, a0.pitch_deg, a0.roll_deg, restarts_deg=(0.0,), **kw)
-                r = residual_profile(q, wi, a, **kw)
-                dist = body_distances(di, a.yaw_deg, q.size) if dem_sigma_m else None
-                out[i] = (robust_cost(r, noise, dist, dem_sigma_m), a, r)
-        return out
+        return refit_costs(renders, q, xs, ys, a0, render_bins=render_bins,
+                           prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg,
+                           noise=noise, dem_sigma_m=dem_sigma_m)
 
     (cost, att, resid), = evaluate([x], [y], att)
     if att is None:

@@ -29,6 +29,11 @@ class Renders:
         self._dem, self._h, self._planet = dem, camera_height_m, planet
         self._kept = {}
 
+    @property
+    def dem(self):
+        """The DEM the skylines are rendered from."""
+        return self._dem
+
     def horizons(self, xs, ys, bins):
         """(elevation [deg], distance of the skyline's terrain [m]): float32 (N, bins) each."""
         from ..horizon import render_horizons
