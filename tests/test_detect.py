@@ -657,3 +657,39 @@ def test_non_finite_pixels_of_a_float_image_are_no_data(method):
     sk = detect_skyline(f, method=method)
     s = score_rows(sk, truth)
     assert s["missed_rate"] < 0.05 and s["within_3px"] > 0.9 and s["false_rate"] == 0, s
+
+
+def test_a_12_bit_camera_in_a_16_bit_file_is_read_at_its_own_depth(tmp_path):
+    """12-bit data (0-4095) in a 16-bit PNG was taken as 0-65535: a sixteenth as bright, the
+    network's skyline in 212 of 1388 columns of a real photo (1388 at 8 bits), an acquisition's
+    frames shifted to near black (>> 8). It reads as the 8-bit image it came from; and a 16-bit
+    mask of 0 and 1 holds data where it is 1 (it was refused as all zero)."""
+    import cv2
+
+    c = np.arange(240)
+    img, truth = synth(100 + 20 * np.sin(c / 25.0))
+    twelve = (img.astype(np.uint16) * 16)  # the same picture on 12 bits
+    from skyfix.formats.images import to_8bit
+
+    assert np.abs(to_8bit(twelve).astype(int) - img).max() <= 1
+    full = img.astype(np.uint16) * 257  # a full-range 16-bit copy reads as before
+    assert np.abs(to_8bit(full).astype(int) - img).max() <= 1
+    dark = np.ones_like(twelve)
+    dark[0, 0] = 4095
+    assert to_8bit(dark)[1:].min() == 1  # a dark pixel is not made black (no data)
+    for method in METHODS:
+        a = score_rows(detect_skyline(img, method=method), truth)
+        b = score_rows(detect_skyline(twelve, method=method), truth)
+        assert a["within_3px"] > 0.8 and b["within_3px"] == pytest.approx(a["within_3px"], abs=0.02)
+    # through the CLI: the file and a 16-bit mask of 0 and 1 (the right half)
+    cv2.imwrite(str(tmp_path / "im.png"), cv2.cvtColor(twelve, cv2.COLOR_RGB2BGR))
+    mask = np.zeros(img.shape[:2], np.uint16)
+    mask[:, 120:] = 1
+    cv2.imwrite(str(tmp_path / "mask.png"), mask)
+    r = CliRunner().invoke(cli, ["detect", str(tmp_path / "im.png"), "--mask",
+                                 str(tmp_path / "mask.png"), "-o", str(tmp_path / "sk.json")])
+    assert r.exit_code == 0, r.output
+    sk = read_skyline_json(tmp_path / "sk.json")
+    got = np.asarray(sk.rows, float)
+    assert np.isnan(got[:120]).all() and np.isfinite(got[125:]).mean() > 0.95
+    assert np.nanmean(np.abs(got[125:] - truth[125:])) < 1.0

@@ -43,7 +43,9 @@ def read_mask(path, shape):
     import cv2
 
     path = Path(path)
-    m = imread_whole(path, cv2.IMREAD_GRAYSCALE)
+    # at its own depth: a 16-bit mask read as 8 bits lost every value below 256 (a mask of 0
+    # and 1 was refused as empty, one of 1 and 1000 halved the image silently)
+    m = imread_whole(path, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
     if m is None:
         raise SkyfixError(f"cannot read mask {path} as an image")
     if m.shape != tuple(shape[:2]):

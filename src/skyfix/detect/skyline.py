@@ -11,6 +11,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..formats import Skyline
+from ..formats.images import to_8bit
 from .bayes import detect_bayes
 from .dp import detect_dp
 from .image import as_gray_rgb, is_grey_rgb, non_finite_as_no_data, valid_mask
@@ -50,7 +51,7 @@ def detect_skyline(image, *, mask=None, method: str = DEFAULT_METHOD, name: str 
         raise ParameterError(f"bad option for method {method!r}: {e}") from None
     check_options(opt)
     try:
-        img, _, _ = as_gray_rgb(image)
+        img, _, _ = as_gray_rgb(to_8bit(image))
     except ParameterError as e:
         if not name:
             raise

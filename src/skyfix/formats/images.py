@@ -50,6 +50,24 @@ def imread_upright(path):
     return imread_whole(path, cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH)
 
 
+def to_8bit(img):
+    """A 16-bit image as uint8 at its effective bit depth (the fewest bits, 8 to 16, that hold its
+    largest value: a 12-bit camera's PNG is 0-4095, not 0-65535), other images unchanged. A
+    pixel above zero stays above zero: black is no data to the detectors. Taken as full 16-bit,
+    12-bit data came out a sixteenth as bright, and the network found its skyline in 212 of
+    1388 columns (1388 at 8 bits)."""
+    import cv2
+    import numpy as np
+
+    if getattr(img, "dtype", None) != np.uint16:
+        return img
+    top = int(img.max()) if img.size else 0
+    full = (1 << min(16, max(8, top.bit_length()))) - 1
+    out = cv2.convertScaleAbs(img, alpha=255.0 / full)
+    out[(out == 0) & (img > 0)] = 1
+    return out
+
+
 def imread_whole(path, flags):
     """``cv2.imread(path, flags)``, refused with an :class:`AcquisitionError` naming the file when
     the decoder reports data it could not read (a truncated or corrupt JPEG); None where OpenCV

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import AcquisitionError, DetectionError
 from ..formats import Acquisition, Skyline
-from ..formats.images import imread_upright
+from ..formats.images import imread_upright, to_8bit
 
 
 #: A detector: RGB uint8 image (H, W, 3) and a validity mask (or None) -> Skyline.
@@ -23,14 +23,13 @@ log = logging.getLogger(__package__)  # messages name the stage, as before the s
 
 def read_rgb(path) -> np.ndarray:
     """An image as RGB uint8 (H, W, 3), upright as its EXIF orientation says; 16-bit images are
-    scaled down."""
+    scaled down from their effective bit depth (:func:`~skyfix.formats.images.to_8bit`)."""
     import cv2
 
     img = imread_upright(path)
     if img is None:
         raise AcquisitionError(f"cannot read image {path}: not an image OpenCV can decode")
-    if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
+    img = to_8bit(img)  # at its own bit depth: >> 8 made a 12-bit camera's frames nearly black
     if img.ndim == 2:
         img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
     else:
