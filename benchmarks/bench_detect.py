@@ -55,7 +55,9 @@ DEV = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "marsscap
 def _read_rgb(path):
     import cv2
 
-    im = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    from skyfix.formats.images import imread_upright
+
+    im = imread_upright(path)  # as evaluate-detect reads it: upright by its EXIF orientation
     if im is None:
         raise SystemExit(f"cannot read {path}")
     if im.ndim == 3:

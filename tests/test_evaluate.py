@@ -128,7 +128,20 @@ def test_evaluate_detect_scores_a_real_labelled_mosaic(tmp_path):
     assert [r_["image"] for r_ in rows] == ["412_1", "all"]
     total = {k: float(v) for k, v in rows[-1].items() if k != "image"}
     assert total["mean_abs_err_px"] < 1.0 and total["within_3px"] > 0.95 and total["false_rate"] < 0.01
+    # on screen the rates are percentages (a 0.45 % rate printed 0.00, hiding the 1 % bars)
+    head = r.output.strip().splitlines()[0].split()
+    assert "within_3px_pct" in head and "false_rate_pct" in head
+    shown = r.output.strip().splitlines()[-2].split()  # the "all" row, before "wrote ..."
+    assert float(shown[head.index("within_3px_pct")]) == pytest.approx(100 * total["within_3px"], abs=0.01)
+    # the pooled time is all the time over all the pixels, after a warm-up call
+    assert total["ms_per_mpx"] == pytest.approx(float(rows[0]["ms_per_mpx"]), rel=1e-3)
     assert run("evaluate-detect", "--images", tmp_path / "nope").exit_code == 2
+    # --overwrite onto one of the folder's truth files is refused, and the file kept
+    before = (tmp_path / "412_1.skyline.json").read_text()
+    r = run("evaluate-detect", "--images", tmp_path, "-o", tmp_path / "412_1.skyline.json",
+            "--overwrite")
+    assert r.exit_code == 2 and "one of this command's inputs" in r.output, r.output
+    assert (tmp_path / "412_1.skyline.json").read_text() == before
 
 
 def test_evaluate_detect_refuses_a_truth_of_another_size_and_counts_orphans(tmp_path, caplog):

@@ -168,9 +168,18 @@ def evaluate_detect(images_dir, method, output, overwrite):
     from ..evaluate import evaluate_detection
     from ..report import format_table
 
-    check_outputs(overwrite, ("--output", output, None))
+    from pathlib import Path
+
+    folder = Path(images_dir)
+    # --overwrite onto a truth file of the folder replaced it with the table
+    ins = [*folder.glob("*.png"), *folder.glob("*.skyline.json")] if folder.is_dir() else []
+    check_outputs(overwrite, ("--output", output, None), inputs=ins)
     rows = evaluate_detection(images_dir, method=method)
-    click.echo(format_table(rows))
+    # the rates as percentages on screen (0.45 % printed as 0.00 of 1, hiding the 1 % bars);
+    # the CSV keeps the fractions
+    rates = ("within_3px", "within_10px", "false_rate", "missed_rate")
+    click.echo(format_table([{(f"{k}_pct" if k in rates else k): (100.0 * v if k in rates else v)
+                              for k, v in r.items()} for r in rows]))
     if output:
         import csv
 

@@ -12,10 +12,12 @@ from ..formats import Skyline
 def scored_columns(pred: Skyline, truth: Skyline) -> np.ndarray:
     """The columns a detection is scored on (bool): ``truth.valid``, else ``pred.valid``, else
     all. Raises :class:`ParameterError` when the two skylines differ in width."""
-    if pred.rows.shape != truth.rows.shape:
+    if pred.rows.shape != truth.rows.shape or (pred.height and truth.height and
+                                               pred.height != truth.height):
+        # a height too: rows of a half-height image against full-height truth scored 25 px
         raise ParameterError(
-            f"detected skyline has {pred.rows.size} columns, the truth {truth.rows.size}: "
-            "score the same image")
+            f"detected skyline is {pred.rows.size} x {pred.height} px, the truth "
+            f"{truth.rows.size} x {truth.height}: score the same image at the same size")
     if truth.valid is not None:
         return np.asarray(truth.valid, bool)
     if pred.valid is not None:
