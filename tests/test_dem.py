@@ -615,3 +615,89 @@ def test_info_names_a_crs_without_a_code_in_one_line(tmp_path):
     for ln in lines.values():
         assert "+proj=eqc" in ln and "+R=3396190" in ln and "PROJCRS" not in ln and "[" not in ln
     assert load_dem(path).crs_name.startswith("+proj=eqc")
+
+
+# --- files that are not what they seem --------------------------------------------------------------
+
+def _small(tmp_path, name, z, *, crs="EPSG:32611", nodata=None, transform=None):
+    from rasterio.transform import from_origin
+
+    return _write_tif(tmp_path / name, z, transform or from_origin(300000, 4150000, 30, 30), crs,
+                      nodata)
+
+
+def test_an_undeclared_fill_value_is_refused_not_read_as_terrain(tmp_path):
+    """A block of -32768 with no nodata declared was read as terrain 32 km deep, silently."""
+    z = (1000 + np.arange(400, dtype=np.int16).reshape(20, 20)).astype(np.int16)
+    z[:5, :5] = -32768
+    with pytest.raises(DemError, match=r"25 cells hold exactly -32768.*gdal_edit.py -a_nodata"):
+        load_dem(_small(tmp_path, "fill.tif", z))
+    z[:5, :5] = 900  # the same DEM without the fill reads
+    assert load_dem(_small(tmp_path, "ok.tif", z)).z.min() == pytest.approx(900)
+
+
+def test_a_radius_product_says_it_holds_the_radius(tmp_path):
+    z = (3396190.0 + np.linspace(0, 500, 400).reshape(20, 20)).astype(np.float32)
+    from rasterio.transform import from_origin
+
+    path = _small(tmp_path, "radius.tif", z, crs="IAU_2015:49900",
+                  transform=from_origin(77.0, 18.5, 0.001, 0.001))
+    with pytest.raises(DemError, match=r"about mars's radius.*subtract the reference radius"):
+        load_dem(path)
+
+
+def test_a_raster_running_east_to_west_is_read(tmp_path):
+    """A negative x pixel size gave left > right bounds and a traceback."""
+    from rasterio.transform import Affine
+
+    z = (np.arange(20, dtype=np.float32)[None, :] * 3 + np.zeros((20, 1), np.float32) + 100)
+    t = Affine(-30.0, 0.0, 300600.0, 0.0, -30.0, 4150000.0)  # column k at x = 300585 - 30 k
+    d = load_dem(_small(tmp_path, "ew.tif", z, transform=t))
+    # the column at x = 300585 - 30 k holds 100 + 3 k
+    assert float(d.height_at(300585.0 - 30 * 7, 4149985.0 - 300)) == pytest.approx(121.0, abs=1e-3)
+
+
+def test_a_truncated_dem_names_the_file(tmp_path):
+    from click.testing import CliRunner
+
+    from skyfix.cli.main import cli
+
+    z = np.random.default_rng(0).normal(1000, 50, (400, 400)).astype(np.float32)
+    path = _small(tmp_path, "cut.tif", z)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 3])
+    r = CliRunner().invoke(cli, ["info", str(path)])
+    assert r.exit_code != 0 and "Traceback" not in r.output
+    assert "cut.tif" in r.output and "truncated or damaged" in r.output, r.output
+
+
+def test_a_dem_across_the_180th_meridian_is_read_into_the_zone_there(tmp_path):
+    """The middle of west 179.97 and east -179.97 was taken as 0: the DEM was read into the UTM
+    zone at 3 deg E, a projection through the pole, 180 deg away. (Its reprojection into the
+    right zone still keeps only the half west of 180: reported, not fixed.)"""
+    from pyproj import CRS, Transformer
+    from rasterio.transform import from_origin
+
+    from skyfix.workcrs import mid_longitude
+
+    assert mid_longitude(179.97, -179.97) == pytest.approx(180.0)
+    assert mid_longitude(170.0, -170.0) == pytest.approx(180.0)
+    assert mid_longitude(175.0, -165.0) == pytest.approx(-175.0)
+    assert mid_longitude(-10.0, 20.0) == pytest.approx(5.0)
+    to = Transformer.from_crs("EPSG:4326", "EPSG:3857", always_xy=True)
+    x0, y0 = to.transform(179.97, 65.0)
+    x1 = 2 * 20037508.342789244 - x0  # as far past 180 (EPSG:3857 runs on in x)
+    n = 60
+    cell = (x1 - x0) / n
+    z = np.full((n, n), 500.0, np.float32)
+    d = load_dem(_small(tmp_path, "dateline.tif", z, crs="EPSG:3857",
+                        transform=from_origin(x0, y0, cell, cell)))
+    assert CRS.from_wkt(d.crs_wkt).to_epsg() in (32601, 32660)
+
+
+def test_an_earth_datum_named_like_another_body_is_earth():
+    """EPSG:4732 (Marshall Islands 1960) contains 'mars': it was taken for another body (no
+    refraction, and --planet earth refused as contradicting it)."""
+    from skyfix.planets import EARTH, planet_from_crs
+
+    assert planet_from_crs("EPSG:4732") is EARTH

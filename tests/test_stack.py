@@ -193,3 +193,26 @@ def test_horizon_of_a_stack_prints_its_summary(stack_files, tmp_path):
     i = next(k for k, s in enumerate(lines) if "2 DEMs" in s)
     assert "fine.tif" in lines[i + 1] and "coarse.tif" in lines[i + 2]
     assert png.stat().st_size > 10_000
+
+
+def test_a_void_in_the_fine_dem_shows_the_coarse_heights(tmp_path):
+    """The fine DEM's void over a hilltop (120 m across) was filled by interpolation from its
+    edges before stacking, so the stack stood 27 m below the hill the coarse DEM holds. The
+    coarse heights show through it now."""
+    coarse = _coarse()
+    x, y = X0 + 8000.0, Y0 - 8000.0
+    z = coarse.z.copy().astype(np.float64)
+    xs, ys = X0 + np.arange(161) * 100.0, Y0 - np.arange(161) * 100.0
+    hill = 60.0 * np.exp(-((xs[None, :] - x) ** 2 + (ys[:, None] - y) ** 2) / (2 * 150.0 ** 2))
+    coarse = Dem((z + hill).astype(np.float32), coarse.x0, coarse.y0, 100.0, 100.0,
+                 coarse.crs_wkt, coarse.crs_name, body=coarse.body)
+    fine = _fine(coarse)
+    fz = fine.z.copy()
+    fxs, fys = fine.x0 + np.arange(201) * 10.0, fine.y0 - np.arange(201) * 10.0
+    fz[(np.abs(fys[:, None] - y) <= 60) & (np.abs(fxs[None, :] - x) <= 60)] = np.nan
+    fine = Dem(fz, fine.x0, fine.y0, 10.0, 10.0, fine.crs_wkt, fine.crs_name, body=fine.body)
+    st = load_dems([write_dem(tmp_path / "fine.tif", fine), write_dem(tmp_path / "c.tif", coarse)])
+    assert float(st.height_at(x, y)) == pytest.approx(float(coarse.height_at(x, y)), abs=0.5)
+    # outside the void the fine DEM's own heights still win
+    assert float(st.height_at(x + 300, y)) == pytest.approx(float(fine.height_at(x + 300, y)),
+                                                            abs=1e-3)

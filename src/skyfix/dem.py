@@ -24,6 +24,7 @@ from .voids import VoidReport, collar_cells, fill_voids
 from .workcrs import (MAX_SCALE_ERROR, as_typed, check_lonlat_extent, check_projected_extent,
                       crop_to_footprint, crs_label, direction_error_deg, earth_work_crs,
                       geographic_bounds, horizontal_crs, local_tm_crs, lonlat_hint, metric_twin,
+                      mid_longitude,
                       reprojection_errors, scale_error, source_footprint, units_in_metres)
 
 log = logging.getLogger(__name__)
@@ -198,6 +199,24 @@ def file_checksum(path, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+#: fill values DEMs are often written with and not declared as nodata
+COMMON_FILL_VALUES = (-32768.0, -32767.0, -9999.0, -99999.0)
+
+
+def check_fill_values(z, name: str) -> None:
+    """Refuse heights ``z`` [m] whose lowest value is a common fill value (:data:`COMMON_FILL_VALUES`)
+    exactly: a block of -32768 read as terrain (no nodata declared) sank the DEM there by 32 km
+    without a word. Real terrain's lowest point is not such a round number."""
+    if not np.isfinite(z).any():
+        return
+    low = float(np.nanmin(z))
+    if low in COMMON_FILL_VALUES:
+        n = int(np.count_nonzero(z == low))
+        raise DemError(f"{name}: {n} cell{'s' * (n != 1)} hold exactly {low:g}, a common fill value, "
+                       f"and no nodata value is declared: declare it (`gdal_edit.py -a_nodata "
+                       f"{low:g} {name}`) so those cells are voids, not terrain")
+
+
 def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
              fill_max_cells: int = 100) -> Dem:
     """Read a GeoTIFF (any raster rasterio reads) as a north-up metric :class:`Dem`.
@@ -253,6 +272,10 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         advise = False  # a projected Earth DEM read into its UTM zone: say how to write it once
         zfactor, xyfactor = units_in_metres((src.units or (None,))[0], src_crs, path.name)
         transform, bounds = src.transform, tuple(src.bounds)
+        # (xmin, ymin, xmax, ymax) whichever way the raster runs: one running east to west gave
+        # left > right, and a traceback
+        bounds = (min(bounds[0], bounds[2]), min(bounds[1], bounds[3]),
+                  max(bounds[0], bounds[2]), max(bounds[1], bounds[3]))
         if xyfactor != 1.0:
             # A CRS in feet is read in the same projection in metres: its coordinates times the
             # foot, the very grid (no resampling). The user's coordinates change: said each time.
@@ -270,7 +293,11 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
             raise DemError(f"{path} holds complex numbers, not heights: give a DEM of real heights")
         if src.count > 1:
             log.warning("%s has %d bands: its heights are taken from band 1", path.name, src.count)
-        band = src.read(1, masked=True).astype(np.float64)
+        try:
+            band = src.read(1, masked=True).astype(np.float64)
+        except RasterioIOError as e:  # "Read failed", naming neither the file nor the cause
+            raise DemError(f"cannot read the heights of {path} ({e.__cause__ or e}): the file is "
+                           "truncated or damaged; give a whole copy") from None
         z = band.filled(np.nan)
         z[~np.isfinite(z)] = np.nan
         scale, offset = (src.scales or (1.0,))[0], (src.offsets or (0.0,))[0]
@@ -280,6 +307,15 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         z = z * zfactor if zfactor != 1.0 else z
         with np.errstate(invalid="ignore"):
             extreme = np.nanmax(np.abs(z)) if np.isfinite(z).any() else 0.0
+        body = planet_from_crs(src_crs)
+        low = float(np.nanmin(np.abs(z))) if np.isfinite(z).any() else 0.0
+        if body is not None and extreme > MAX_ABS_HEIGHT_M and low > 0.9 * body.radius_m:
+            # every height is about the body's radius: a radius product, not elevations
+            raise DemError(f"{path} holds heights of {low:.4g}-{extreme:.4g} m, about {body.name}'s "
+                           f"radius ({body.radius_m:.0f} m): it gives the radius, not the height "
+                           f"above a datum; subtract the reference radius (e.g. `gdal_calc.py -A "
+                           f"{path.name} --calc 'A-{body.radius_m:.0f}' --outfile OUT.tif`, with "
+                           "the radius its label names) or give the product's elevation DEM")
         if extreme > MAX_ABS_HEIGHT_M:
             # Olympus Mons stands 22 km above the Martian datum, the Mariana trench 11 km below
             # sea level: a height beyond 100 km is a fill value or a unit mistake, not terrain
@@ -287,7 +323,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
                            f"{MAX_ABS_HEIGHT_M / 1000:g} km any terrain lies from its datum: mark its "
                            "fill value as nodata (e.g. `gdal_edit.py -a_nodata VALUE`) or convert its "
                            "units to metres")
-        body = planet_from_crs(src_crs)
+        check_fill_values(z, path.name)
         if crs is not None:
             try:
                 dst_crs = CRS.from_user_input(crs)
@@ -305,7 +341,7 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
             if err > MAX_SCALE_ERROR:
                 if body is not EARTH:
                     w, s, e, n = geographic_bounds(src_crs, bounds)
-                    dst_crs = local_tm_crs(src_crs, (w + e) / 2, (s + n) / 2)
+                    dst_crs = local_tm_crs(src_crs, mid_longitude(w, e), (s + n) / 2)
                     log.info("%s: %s stretches distances by up to %.2f %% over the DEM: "
                              "reprojected to %s", path.name, crs_label(src_crs),
                              100 * err, dst_crs.name)

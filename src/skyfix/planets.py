@@ -6,6 +6,8 @@ A terrain point at horizontal distance ``d`` appears lower than on a flat world 
 
 from __future__ import annotations
 
+import re
+
 from dataclasses import dataclass
 
 from .errors import ParameterError
@@ -79,7 +81,9 @@ def planet_from_crs(crs) -> Planet | None:
     ell = c.ellipsoid
     if ell is None:
         return None
-    names = " ".join(filter(None, [getattr(c.datum, "name", ""), ell.name, c.name])).lower()
+    # whole words: "Marshall Islands 1960" (EPSG:4732) is on Earth, not Mars
+    names = set(re.findall(r"[a-z]+", " ".join(
+        filter(None, [getattr(c.datum, "name", ""), ell.name, c.name])).lower()))
     a, b = float(ell.semi_major_metre), float(ell.semi_minor_metre)
     radius = (2.0 * a + b) / 3.0
     for body in (MARS, MOON):

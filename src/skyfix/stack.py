@@ -200,13 +200,18 @@ def load_dems(paths, *, crs: str | None = None):
         raise DemError("no DEM given")
     if len(paths) == 1:
         return load_dem(paths[0], crs=crs)
-    first = [load_dem(p, crs=crs) for p in paths]
+    # A finer member's voids are not filled: a coarser member's heights show through them. Filled
+    # by interpolation (up to 100 cells from data) they hid the coarse DEM's real terrain: a 1 m
+    # DTM's 120 m void over a hilltop put the stack 27 m below it. The coarsest is filled as a
+    # single DEM is (nothing lies behind it).
+    first = [load_dem(p, crs=crs, fill_max_cells=0) for p in paths]
     bodies = {d.body.name if d.body is not None else "unknown" for d in first}
     if len(bodies) > 1:
         raise DemError(f"the DEMs are on different bodies ({', '.join(sorted(bodies))}): a stack "
                        "describes one place")
     order = sorted(range(len(first)), key=lambda i: first[i].cell_m)
     finest = first[order[0]]
+    coarsest = order[-1]
     members = [finest]
     for i in order[1:]:
         d = first[i]
@@ -217,7 +222,10 @@ def load_dems(paths, *, crs: str | None = None):
             # into the finest's CRS only to refuse it warned of its stretch before the refusal
             if not _lonlat_overlap(d, finest):
                 raise apart
-            d = load_dem(paths[i], crs=finest.crs_wkt, resolution_m=d.cell_m)
+            d = load_dem(paths[i], crs=finest.crs_wkt, resolution_m=d.cell_m,
+                         **({} if i == coarsest else {"fill_max_cells": 0}))
+        elif i == coarsest:  # read as before, its voids filled
+            d = load_dem(paths[i], crs=crs)
         b, f = d.bounds, finest.bounds
         if b[0] > f[2] or b[2] < f[0] or b[1] > f[3] or b[3] < f[1]:
             raise apart

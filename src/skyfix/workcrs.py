@@ -28,6 +28,16 @@ import numpy as np
 MAX_SCALE_ERROR = 0.001
 
 
+def mid_longitude(west: float, east: float) -> float:
+    """[deg] the longitude halfway from ``west`` to ``east``, eastwards: across the 180th meridian
+    (west > east) the middle lies near 180, not on the far side of the body (a DEM there was read
+    into a projection centred 180 deg away, and half of it was lost)."""
+    if west > east:
+        east += 360.0
+    mid = (west + east) / 2.0
+    return (mid + 180.0) % 360.0 - 180.0 if mid > 180.0 else mid
+
+
 def local_tm_crs(crs, lon0: float, lat0: float):
     """A transverse Mercator (scale 1, no false origin) on the geodetic datum of ``crs`` (any
     body), centred on (lon0, lat0) [deg] of that body: a ``pyproj.CRS``."""
@@ -61,14 +71,15 @@ def earth_work_crs(src_crs, src_bounds):
 
     src = CRS.from_user_input(src_crs)
     w, s, e, n = (src_bounds if src.is_geographic else geographic_bounds(src, src_bounds))
-    utm = utm_crs_for((w + e) / 2, (s + n) / 2)
+    lon0 = mid_longitude(w, e)
+    utm = utm_crs_for(lon0, (s + n) / 2)
     try:
         b = Transformer.from_crs(src, utm, always_xy=True).transform_bounds(*src_bounds)
     except Exception:  # noqa: BLE001 - pyproj raises several types for bounds it cannot carry
         b = None
     if b is not None and scale_error(utm, b) <= MAX_SCALE_ERROR:
         return utm
-    return local_tm_crs(src, (w + e) / 2, (s + n) / 2)
+    return local_tm_crs(src, lon0, (s + n) / 2)
 
 
 def _worst_factor(crs, bounds, n: int, of) -> float:
