@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from skyfix.dem import load_dem
+from skyfix.errors import DemError
 from skyfix.planets import MARS, MOON, planet_from_crs
 
 R = 3_396_190.0
@@ -173,3 +174,19 @@ def test_an_anonymous_datum_is_named_by_its_radius_only_when_it_is_unambiguous()
     assert planet_from_crs(sphere.format(a=1737400)) is MOON
     io = planet_from_crs(sphere.format(a=1821600))  # Io: no body we know by that radius
     assert io.name.startswith("unnamed body") and io.radius_m == pytest.approx(1821600)
+
+
+def test_a_pds3_label_in_kilometres_is_refused_not_read_as_metres(tmp_path):
+    """GDAL's PDS driver does not pass the label's UNIT on: a DTM in KILOMETER was read as metres
+    (heights a thousandth of the terrain's), silently. The label's unit is read now."""
+    lbl = _hirise(tmp_path, LAT_TOP)
+    km = tmp_path / "DTEEC_KM.LBL"
+    km.write_text(lbl.read_text().replace("UNIT = METER", "UNIT = KILOMETER"))
+    with pytest.raises(DemError, match=r"heights are in 'KILOMETER', not metres"):
+        load_dem(km)
+    import rasterio
+
+    from skyfix.dem import pds3_unit
+
+    with rasterio.open(lbl) as src:  # the label's own unit, as GDAL exposes its label
+        assert pds3_unit(src) == "METER"

@@ -199,6 +199,27 @@ def file_checksum(path, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+def pds3_unit(src) -> str | None:
+    """The unit a PDS3 label gives its image (``IMAGE.UNIT``, e.g. ``METER``), which GDAL's PDS
+    driver does not pass on as the band's unit (a label saying KILOMETER was read as metres,
+    silently); None for other files or a label without one."""
+    import json
+
+    if getattr(src, "driver", "") != "PDS":
+        return None
+    try:
+        items = src.tags(ns="json:PDS")
+    except Exception:  # noqa: BLE001 - no such metadata: nothing to say
+        return None
+    # rasterio splits GDAL's one JSON string at its first ':'; put it back together
+    text = "".join(f"{k}:{v}" for k, v in items.items()) if items else ""
+    try:
+        unit = json.loads(text).get("IMAGE", {}).get("UNIT")
+    except (ValueError, AttributeError):
+        return None
+    return str(unit).strip().strip('"') if unit else None
+
+
 #: fill values DEMs are often written with and not declared as nodata
 COMMON_FILL_VALUES = (-32768.0, -32767.0, -9999.0, -99999.0)
 
@@ -270,7 +291,8 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
         check_lonlat_extent(src_crs, src.bounds, path.name)  # before a transform trips on it
         check_projected_extent(src_crs, src.bounds, src.res[0], path.name)
         advise = False  # a projected Earth DEM read into its UTM zone: say how to write it once
-        zfactor, xyfactor = units_in_metres((src.units or (None,))[0], src_crs, path.name)
+        zfactor, xyfactor = units_in_metres((src.units or (None,))[0] or pds3_unit(src),
+                                            src_crs, path.name)
         transform, bounds = src.transform, tuple(src.bounds)
         # (xmin, ymin, xmax, ymax) whichever way the raster runs: one running east to west gave
         # left > right, and a traceback
