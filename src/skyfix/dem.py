@@ -421,7 +421,10 @@ def load_dem(path, *, crs: str | None = None, resolution_m: float | None = None,
 
 def _reproject(z, transform, src_crs, bounds, dst_crs, resolution_m, name, *, check_spread):
     """Heights ``z`` on ``transform`` in ``src_crs`` (over ``bounds``) reprojected into ``dst_crs``
-    (bilinear; square cells of ``resolution_m``, default the finer native size): (heights, their
+    (bilinear; square cells of ``resolution_m``, default GDAL's, which keeps the source's pixel
+    diagonal: coarser than its finer side where the cells are not square, e.g. 79.6 m for a
+    3-arcsecond tile at 46 deg N whose cells are 64 x 93 m, and sqrt(2) coarser for a grid turned
+    45 deg; not changed, for it would change every reprojected DEM's grid): (heights, their
     transform, the mask of cells outside the source's footprint). With ``check_spread`` a grid
     that spans too much of its body for one metric CRS is refused."""
     from rasterio.warp import Resampling, calculate_default_transform, reproject
@@ -430,7 +433,7 @@ def _reproject(z, transform, src_crs, bounds, dst_crs, resolution_m, name, *, ch
     ny, nx = z.shape
     dst_transform, w, h = calculate_default_transform(src_wkt, dst_wkt, nx, ny, *bounds,
                                                       resolution=resolution_m)
-    if resolution_m is None:  # square pixels at the finer of the two native sizes
+    if resolution_m is None:  # square pixels (GDAL's default already is: this keeps its size)
         res = min(abs(dst_transform.a), abs(dst_transform.e))
         dst_transform, w, h = calculate_default_transform(src_wkt, dst_wkt, nx, ny, *bounds,
                                                           resolution=res)
