@@ -216,3 +216,58 @@ def test_a_void_in_the_fine_dem_shows_the_coarse_heights(tmp_path):
     # outside the void the fine DEM's own heights still win
     assert float(st.height_at(x + 300, y)) == pytest.approx(float(fine.height_at(x + 300, y)),
                                                             abs=1e-3)
+
+
+def test_a_stack_is_read_in_a_projection_true_over_all_of_it(tmp_path):
+    """A 1 km HiRISE-like DTM in its own equirectangular (true at its latitude, 18.4 N) inside a
+    200 km MOLA-like geographic DEM: the stack was read in the DTM's projection, chosen over the
+    DTM alone, which stretches the coarse DEM by 1 % and turns a ridge 100 km away by 0.3 deg.
+    Now the stack's CRS holds the whole within 0.1 %, and the bearing of a far point agrees with
+    the sphere's (pyproj.Geod) within 0.01 deg."""
+    import math
+
+    import rasterio
+    from pyproj import CRS, Geod, Transformer
+    from rasterio.transform import from_origin
+
+    from skyfix.workcrs import scale_error
+
+    R, lon0, lat0 = 3396190.0, 77.5, 18.4
+
+    def write(path, z, crs, transform):
+        with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0],
+                           count=1, dtype="float32", crs=crs, transform=transform) as d:
+            d.write(z.astype("float32"), 1)
+        return path
+
+    def terrain(lon, lat):
+        return -2500 + 30 * np.sin(40 * (lon - lon0)) * np.cos(50 * (lat - lat0))
+
+    n, step = 220, math.degrees(920.0 / R)  # 200 km at about 920 m
+    west, north = lon0 - step * n / 2, lat0 + step * n / 2
+    lon = west + (np.arange(n) + 0.5) * step
+    lat = north - (np.arange(n) + 0.5) * step
+    coarse = write(tmp_path / "mola.tif", terrain(*np.meshgrid(lon, lat)), "IAU_2015:49900",
+                   from_origin(west, north, step, step))
+    eqc = CRS.from_proj4(f"+proj=eqc +lat_ts={lat0} +lon_0={lon0} +R={R} +units=m +no_defs")
+    m, cell = 200, 5.0
+    fx0, fy0 = -m * cell / 2, m * cell / 2 + R * math.radians(lat0)
+    gx, gy = np.meshgrid(fx0 + (np.arange(m) + 0.5) * cell, fy0 - (np.arange(m) + 0.5) * cell)
+    flon, flat = Transformer.from_crs(eqc, eqc.geodetic_crs, always_xy=True).transform(gx, gy)
+    fine = write(tmp_path / "hirise.tif", terrain(flon, flat), eqc.to_wkt(),
+                 from_origin(fx0, fy0, cell, cell))
+    st = load_dems([coarse, fine])
+    work = CRS.from_wkt(st.crs_wkt)
+    assert all(mb.crs_wkt == st.crs_wkt for mb in st.members)
+    co = st.members[-1]
+    assert scale_error(work, co.bounds) <= 0.001
+    # the bearing from the DTM's centre to a point 90 km north-east, in the stack's grid plus its
+    # meridian convergence, against the sphere's
+    to = Transformer.from_crs(work.geodetic_crs, work, always_xy=True)
+    (x0, y0), (x1, y1) = to.transform(lon0, lat0), to.transform(lon0 + 0.6, lat0 + 0.6)
+    from skyfix.north import meridian_convergence_deg
+
+    grid = math.degrees(math.atan2(x1 - x0, y1 - y0))
+    true = grid + meridian_convergence_deg(st.crs_wkt, x0, y0)
+    fwd, _, _ = Geod(a=R, b=R).inv(lon0, lat0, lon0 + 0.6, lat0 + 0.6)
+    assert abs((true - fwd + 180) % 360 - 180) < 0.01
