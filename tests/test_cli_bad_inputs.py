@@ -524,8 +524,11 @@ def test_prior_radius_too_large_or_not_finite(dem_file, profile_json):
     prof = profile_json()
     base = ("locate", "--profile", prof, "--dem", dem_file, "--prior-x", 500, "--prior-y", 500)
     assert_clean_error(run(*base, "--prior-radius-m", 1e7), "build a database", "--prior-radius-m")
-    for v in ("inf", "nan"):
-        assert_clean_error(run(*base, "--prior-radius-m", v), "--prior-radius-m must be a finite")
+    for v in ("inf", "nan", "1e300"):  # 1e300 overflowed in the search, after detection
+        assert_clean_error(run(*base, "--prior-radius-m", v), "--prior-radius-m must be a number")
+    # so did a DEM error of 1e300 m in the sigmas' model
+    assert_clean_error(run(*base, "--prior-radius-m", 4, "--dem-sigma-m", "1e300"),
+                       "--dem-sigma-m must be a number of metres from 0")
     assert_clean_error(run("locate", "--profile", prof, "--dem", dem_file, "--prior-x", "nan",
                            "--prior-y", 500, "--prior-radius-m", 4), "--prior-x must be a finite")
 

@@ -56,8 +56,9 @@ def test_heading_from_a_position_20_m_off_beside_near_terrain(tmp_path):
     assert alike > 1.0
     # a position known to kilometres: the sigma is that of a heading not known at all (it was
     # 7.8 M deg at confidence 0.9999997), and the confidence says the heading is not likely right
-    _, d = error("--position-sigma-m", "1e9")
-    assert d["heading_sigma_deg"] == pytest.approx(360.0 / math.sqrt(12.0)) and d["confidence"] < 0.05
+    _, d = error("--position-sigma-m", "1e5")  # the most it takes (1e300 overflowed)
+    # the half-width that holds 68 % of a heading uniform on the circle
+    assert d["heading_sigma_deg"] == pytest.approx(0.6827 * 180.0, rel=1e-3) and d["confidence"] < 0.05
     r = CliRunner().invoke(cli, base + ["--position-sigma-m", "-5"])
     assert r.exit_code == 2 and "--position-sigma-m" in r.output and "Traceback" not in r.output
 

@@ -170,7 +170,11 @@ def test_heading_only_mode(world):
     assert abs(_ang(hf.heading_deg - 222.0)) < 1.0
     assert 0 < hf.heading_sigma_deg < 0.5  # measured 0.027 (heading scatter: own test)
     assert hf.confidence >= 0.9  # measured 0.999
-    assert hf.confidence == pytest.approx(confidence_from_features(hf.features, key="heading"))
+    # the model's, or less: at most the chance that a normal error of the basin's own sigma
+    # stays within the 1 deg tolerance
+    cap = math.erf(1.0 / (hf.features["heading_sigma_basin_deg"] * math.sqrt(2.0)))
+    assert hf.confidence == pytest.approx(min(confidence_from_features(hf.features, key="heading"),
+                                              cap))
     # Wrong answers, through the model (relief 7.6 deg, far above the flat-horizon cap's 2x noise):
     # the rough position 150 m off (fix 14 deg off, measured confidence 0.02), and the truth
     # outside the window (prior 40 deg off: fix at the window's edge, 20 deg off, measured 0.08).
@@ -644,3 +648,21 @@ def test_polish_stops_in_a_known_basin(world, monkeypatch):
     assert math.hypot(joined[0] - tx, joined[1] - ty) <= 5.0  # stopped on entering the basin
     # measured: 124 fits to 0.06 m off, against 12 fits to 2.1 m off
     assert joined[3] > free[3] and len(fits) < n_free / 2
+
+
+def test_a_view_narrower_than_the_calibration_is_not_confident(world):
+    """One navcam frame's 45 deg: the confidence model saw views of 120-360 deg only, and gave
+    0.80 on single frames 18-37 m off. Capped, and said, whatever the fix."""
+    from skyfix.pose.locate import CALIBRATED_MIN_SPAN_DEG, DEGENERATE_CAP
+
+    dem, st = world
+    prof = synthetic_profile(dem, 733.3, 871.9, 123.4, noise_deg=0.05, rng=3)
+    az = np.arange(prof.elevation_deg.size) * 360.0 / prof.elevation_deg.size
+    keep = np.abs(_ang(az - 40.0)) <= 22.5
+    q = np.where(keep, prof.elevation_deg, np.nan)
+    narrow = type(prof)(q, np.where(keep, prof.sigma_deg, np.nan), prof.frame, prof.meta)
+    fix = locate(narrow, db=st, dem=dem, config=CFG)
+    assert fix.confidence <= DEGENERATE_CAP
+    assert any(f"narrower than the {CALIBRATED_MIN_SPAN_DEG:g} deg" in n for n in fix.notes)
+    full = locate(prof, db=st, dem=dem, config=CFG)  # the whole turn is not capped
+    assert not any("narrower than" in n for n in full.notes) and full.confidence > DEGENERATE_CAP

@@ -85,8 +85,10 @@ def heading(acq_dir, profile_path, dem_paths, x, y, lon, lat, heading_prior_deg,
                              f"clockwise from north, got {heading_prior_deg:g}")
     if position_sigma_m is None:
         from ..pose.heading import HEADING_POSITION_SIGMA_M as position_sigma_m
-    if not (math.isfinite(position_sigma_m) and position_sigma_m >= 0):
-        raise ParameterError(f"--position-sigma-m must be a finite number of metres >= 0, got "
+    if not (math.isfinite(position_sigma_m) and 0 <= position_sigma_m <= 1e5):
+        # 1e300 passed as finite and overflowed in the weights
+        raise ParameterError(f"--position-sigma-m must be a number of metres from 0 to 1e+05 (a "
+                             f"position known to 100 km says nothing of a heading), got "
                              f"{position_sigma_m}")
     dem_sigma_m = dem_sigma(dem_sigma_m)
     acq = read_acquisition(acq_dir)

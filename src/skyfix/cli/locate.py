@@ -20,6 +20,10 @@ from .options import check_point_options, dem_sigma, detector_option, point_xy
 LONLAT_PRIOR = "--prior-lon/--prior-lat"
 
 
+#: [m] the largest prior radius that means anything: half the Earth's circumference
+MAX_PRIOR_RADIUS_M = 2.0e7
+
+
 def _check_prior_area(db, dem, prior, radius_m) -> None:
     """Refuse, before any image is read, a prior disc (centre [m], radius [m]) that holds no
     database position, or, searched on the DEM alone, whose centre lies off the DEM."""
@@ -44,6 +48,11 @@ def _check_prior_area(db, dem, prior, radius_m) -> None:
     elif dem is not None:
         dem.require_inside(np.array([prior[0]]), np.array([prior[1]]), "prior position",
                            lonlat_options=LONLAT_PRIOR)
+        from ..pose import PoseConfig
+        from ..pose.refine import prior_grid
+
+        # too many points for the DEM-only search: said now, not after detecting every frame
+        prior_grid(dem, prior, radius_m, PoseConfig().grid_step_m)
 
 
 def _check_db_dem(db, dem, db_path, dem_path, force) -> list[str]:
@@ -220,8 +229,12 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
     check_point_options(prior_x, prior_y, prior_lon, prior_lat, xname="--prior-x", yname="--prior-y",
                         lonname="--prior-lon", latname="--prior-lat", required=False)
     have_prior = prior_x is not None or prior_lon is not None
-    if prior_radius_m is not None and not (math.isfinite(prior_radius_m) and prior_radius_m > 0):
-        raise ParameterError(f"--prior-radius-m must be a finite number of metres > 0, got {prior_radius_m}")
+    if prior_radius_m is not None and not (math.isfinite(prior_radius_m) and
+                                           0 < prior_radius_m <= MAX_PRIOR_RADIUS_M):
+        # 1e300 passed as finite and overflowed in the search, after detection
+        raise ParameterError(f"--prior-radius-m must be a number of metres > 0 and at most "
+                             f"{MAX_PRIOR_RADIUS_M:g} (half the Earth's circumference), got "
+                             f"{prior_radius_m}")
     if db_path is None and dem_path is None:
         raise ParameterError("give --db DB (and optionally --dem) or --dem with a prior area")
     if db_path is None and (not have_prior or prior_radius_m is None):

@@ -41,6 +41,10 @@ def camera_height(ctx, param, value):
     return value
 
 
+#: [m] the largest DEM height error a sigma may allow for: beyond, the DEM says nothing
+MAX_DEM_SIGMA_M = 1000.0
+
+
 def dem_sigma(value):
     """``--dem-sigma-m`` checked before any work [m]: finite and >= 0 (0: the DEM is the world);
     None gives the sigmas' usual allowance, :data:`skyfix.pose.map_error.MAP_DEM_SIGMA_M`."""
@@ -50,9 +54,10 @@ def dem_sigma(value):
         from ..pose.map_error import MAP_DEM_SIGMA_M
 
         return MAP_DEM_SIGMA_M
-    if not (math.isfinite(value) and value >= 0):
-        raise ParameterError(f"--dem-sigma-m must be a finite number of metres >= 0 (0: the DEM is "
-                             f"taken as the world), got {value}")
+    if not (math.isfinite(value) and 0 <= value <= MAX_DEM_SIGMA_M):
+        # 1e300 passed as finite and overflowed in the sigmas' model
+        raise ParameterError(f"--dem-sigma-m must be a number of metres from 0 (the DEM is taken "
+                             f"as the world) to {MAX_DEM_SIGMA_M:g}, got {value}")
     return value
 
 

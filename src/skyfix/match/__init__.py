@@ -13,11 +13,11 @@ World/body convention: ``world[az] = body[az - H]``, so query bin ``j`` (body) m
 
 from .memory import MISSING_RAW, MemoryStore, grid_index
 from .scores import (DenseQuery, Query, brute_force_scores, decimate_query, dense_query,
-                     harmonic_basis, prepare_query, score_dense, score_profiles,
-                     tilt_determinable)
+                     harmonic_basis, observed_span_deg, prepare_query, score_dense,
+                     score_profiles, tilt_determinable)
 from .search import PRESETS, Candidate, MatchConfig, MatchResult, match_database
 
 __all__ = ["MISSING_RAW", "PRESETS", "Candidate", "DenseQuery", "MatchConfig", "MatchResult",
            "MemoryStore", "Query", "brute_force_scores", "decimate_query", "dense_query",
-           "grid_index", "harmonic_basis", "match_database", "prepare_query", "score_dense",
-           "score_profiles", "tilt_determinable"]
+           "grid_index", "harmonic_basis", "match_database", "observed_span_deg", "prepare_query",
+           "score_dense", "score_profiles", "tilt_determinable"]

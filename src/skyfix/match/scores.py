@@ -62,6 +62,25 @@ def tilt_determinable(observed) -> bool:
     return bool(np.isfinite(np.linalg.cond(g)) and np.linalg.cond(g) <= MAX_TILT_CONDITION)
 
 
+def observed_span_deg(q) -> float:
+    """[deg] the arc a profile's observed bins (finite ``q``) span: the circle less its largest
+    run of unobserved bins."""
+    obs = np.isfinite(np.asarray(q, float))
+    n = obs.size
+    if not obs.any():
+        return 0.0
+    if obs.all():
+        return 360.0
+    # the longest circular run of unobserved bins
+    k = int(np.argmax(obs))  # start just after an observed bin, so no run wraps
+    rolled = np.roll(~obs, -k)
+    run = best = 0
+    for v in rolled:
+        run = run + 1 if v else 0
+        best = max(best, run)
+    return 360.0 * (n - best) / n
+
+
 def prepare_query(elevation_deg, remove_tilt: bool = True, min_observed: int = 20) -> Query:
     """Kernels for :func:`score_profiles` from a body-frame profile [deg] (NaN = unobserved)."""
     q = np.asarray(elevation_deg, np.float64)

@@ -94,12 +94,16 @@ class HeadingFix:
 DETERMINED_SIGMA_DEG = 0.5
 #: the least confidence at which any angle counts as determined
 DETERMINED_MIN_CONFIDENCE = 0.5
-#: [deg] the 1-sigma of a pitch or roll known not at all: uniform over the fits' +-30 deg bound;
-#: no reported pitch or roll sigma exceeds it (a view that cannot see the tilt gave 290-900)
-UNKNOWN_TILT_SIGMA_DEG = 60.0 / math.sqrt(12.0)
-#: [deg] the 1-sigma of a heading known not at all (uniform on the circle: 360 / sqrt(12)); no
-#: reported heading sigma exceeds it
-UNKNOWN_HEADING_SIGMA_DEG = 360.0 / math.sqrt(12.0)
+#: the share of a normal error within its 1-sigma: what a reported sigma claims
+ONE_SIGMA_SHARE = math.erf(1.0 / math.sqrt(2.0))
+#: [deg] the 1-sigma of a pitch or roll known not at all, uniform over the fits' +-30 deg bound:
+#: the half-width that holds 68 % of it, as every sigma claims (the uniform's standard deviation,
+#: 17.3, held 58 %); no reported pitch or roll sigma exceeds it (a view that cannot see the tilt
+#: gave 290-900)
+UNKNOWN_TILT_SIGMA_DEG = ONE_SIGMA_SHARE * 30.0
+#: [deg] the 1-sigma of a heading known not at all, uniform on the circle: the half-width holding
+#: 68 % of it (122.9; 360 / sqrt(12) = 103.9 held 58 %); no reported heading sigma exceeds it
+UNKNOWN_HEADING_SIGMA_DEG = ONE_SIGMA_SHARE * 180.0
 
 
 def crs_and_lonlat(crs_wkt: str, x: float, y: float):

@@ -247,12 +247,11 @@ def estimate_heading(profile, dem, x, y, heading_prior_deg, window_deg=10.0, *,
     # what the confidence says of the basin: the cap below speaks of the sigma's own width,
     # which the sigma already carries (counted twice, a right heading came out +-94 deg)
     basin_conf = conf
-    if hsig > 2.0 * HEADING_TOLERANCE_DEG:
-        # A heading whose own sigma spans twice the tolerance is not likely right, however well
-        # the profile fits: e.g. a rough position known to kilometres, whose near and far skylines
-        # alike then say little of the heading (7.8 M deg at confidence 0.9999997 with 1e9 m). At
-        # most the chance that a normal error of that sigma stays within the tolerance.
-        conf = min(conf, math.erf(HEADING_TOLERANCE_DEG / (hsig * math.sqrt(2.0))))
+    # A heading is not likelier right than a normal error of its own sigma stays within the
+    # tolerance, however well the profile fits: a rough position known to kilometres gave 7.8 M
+    # deg at confidence 0.9999997 with 1e9 m, and one 60 m off 1.8 deg at 0.9999 with a sigma of
+    # 1.9 (the cap held only above 2 deg then). Below 0.3 deg of sigma it is above 0.999.
+    conf = min(conf, math.erf(HEADING_TOLERANCE_DEG / (hsig * math.sqrt(2.0))))
     log.debug("heading confidence features: %s",
               ", ".join(f"{k} {v:.3g}" for k, v in feat.items()))
     # the sigmas so far are the basin's own; the confidence says how likely that basin is

@@ -34,7 +34,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import ParameterError, SkyfixError
-from ..match import match_database, prepare_query, tilt_determinable
+from ..match import match_database, observed_span_deg, prepare_query, tilt_determinable
 from ..north import heading_360, meridian_convergence_deg, true_heading_deg, wrap_deg
 from ..progress import stage
 from .basin_sigma import disc_share, rect_share, rival_heading_sigma, wrong_basin_radius
@@ -54,6 +54,11 @@ log = logging.getLogger(__name__)
 
 #: the most confidence a degenerate search may report (:func:`degenerate_search`)
 DEGENERATE_CAP = 0.45
+#: [deg] the narrowest view the confidence models were calibrated on (views of 120-360 deg):
+#: a narrower one's position confidence is the model extrapolating (one navcam frame, 40-46
+#: bins, gave 0.80 on fixes 18-37 m off)
+CALIBRATED_MIN_SPAN_DEG = 120.0
+
 #: fewer database positions than this in the searched area is a degenerate search
 MIN_SEARCHED_POSITIONS = 49
 
@@ -428,6 +433,11 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     basin_conf = conf
     degenerate = degenerate_search(db, dem, fx, fy, prior_xy, prior_radius_m, sep,
                                    config.grid_step_m)
+    span = observed_span_deg(q)
+    if span < CALIBRATED_MIN_SPAN_DEG:
+        degenerate.append(f"the observed skyline spans {span:.0f} deg, narrower than the "
+                          f"{CALIBRATED_MIN_SPAN_DEG:g} deg the confidence was calibrated on: a "
+                          "narrow view pins the position loosely, and its sigmas may not cover it")
     if degenerate:
         conf = min(conf, DEGENERATE_CAP)
         notes += [f"confidence capped at {DEGENERATE_CAP}: {r}" for r in degenerate]
