@@ -186,7 +186,7 @@ def test_a_pds3_label_in_kilometres_is_refused_not_read_as_metres(tmp_path):
         load_dem(km)
     import rasterio
 
-    from skyfix.dem import pds3_unit
+    from skyfix.heights import pds3_unit
 
     with rasterio.open(lbl) as src:  # the label's own unit, as GDAL exposes its label
         assert pds3_unit(src) == "METER"
