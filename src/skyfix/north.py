@@ -24,6 +24,18 @@ def wrap_deg(a):
     return (np.asarray(a, float) + 180.0) % 360.0 - 180.0
 
 
+def arc_span_deg(angles_deg, width_deg: float) -> float:
+    """[deg] the smallest arc of the circle that holds every one of ``angles_deg`` [deg], each
+    reaching ``width_deg`` [deg] on: the circle less its largest gap between neighbours, at most
+    360; 0 without angles. A frame set's pans with the field of view, a profile's observed bins
+    with the bin's width."""
+    a = np.sort(np.mod(np.asarray(angles_deg, float).ravel(), 360.0))
+    if a.size == 0:
+        return 0.0
+    gaps = np.diff(np.r_[a, a[0] + 360.0])
+    return float(min(360.0, 360.0 - gaps.max() + width_deg))
+
+
 @lru_cache(maxsize=16)
 def _transformers(crs_wkt: str):
     from pyproj import CRS, Transformer

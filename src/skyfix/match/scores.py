@@ -12,6 +12,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..jit import njit
+from ..north import arc_span_deg
 
 
 @dataclass
@@ -66,19 +67,7 @@ def observed_span_deg(q) -> float:
     """[deg] the arc a profile's observed bins (finite ``q``) span: the circle less its largest
     run of unobserved bins."""
     obs = np.isfinite(np.asarray(q, float))
-    n = obs.size
-    if not obs.any():
-        return 0.0
-    if obs.all():
-        return 360.0
-    # the longest circular run of unobserved bins
-    k = int(np.argmax(obs))  # start just after an observed bin, so no run wraps
-    rolled = np.roll(~obs, -k)
-    run = best = 0
-    for v in rolled:
-        run = run + 1 if v else 0
-        best = max(best, run)
-    return 360.0 * (n - best) / n
+    return arc_span_deg(np.flatnonzero(obs) * 360.0 / obs.size, 360.0 / obs.size)
 
 
 def prepare_query(elevation_deg, remove_tilt: bool = True, min_observed: int = 20) -> Query:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera, az_el_to_direction, r_world_cam
-from ..north import wrap_deg
+from ..north import arc_span_deg, wrap_deg
 from .confidence import residual_correlation_bins
 from .lm import levenberg_marquardt
 from .map_error import MAP_CORRELATION_M, MAP_DEM_SIGMA_M, error_covariance, sandwich
@@ -306,10 +306,7 @@ def view_span_deg(frames) -> float:
     the widest field of view (an upper bound, used to decide whether the view is narrow)."""
     if not frames:
         return 0.0
-    pans = np.sort(np.asarray([f.pan_deg for f in frames], float) % 360.0)
-    # the arc outside the largest gap between neighbouring pans, around the circle
-    gaps = np.diff(np.r_[pans, pans[0] + 360.0])
-    return float(min(360.0, 360.0 - gaps.max() + max(f.camera.hfov_deg for f in frames)))
+    return arc_span_deg([f.pan_deg for f in frames], max(f.camera.hfov_deg for f in frames))
 
 
 __all__ = ["IMAGE_PLANE_DEM_SIGMA_M", "IMAGE_PLANE_MAX_SPAN_DEG", "MAP_CORRELATION_M",
