@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from ..errors import ParameterError
+from ..formats.images import full_scale
 from ..jit import njit
 from .options import MIN_HEIGHT_PX, MIN_WIDTH_PX
 
@@ -108,8 +109,8 @@ ROW_BAND = 256
 
 
 def to_float_gray(img):
-    """The grey level as float32 on the 0-255 scale (uint16 rescaled, float in [0, 1] stretched),
-    luma weights 0.299, 0.587, 0.114 for RGB."""
+    """The grey level as float32 on the 0-255 scale (uint16 rescaled from its own bit depth, float
+    in [0, 1] stretched), luma weights 0.299, 0.587, 0.114 for RGB."""
     if img.ndim == 2:
         g = img.astype(np.float32)
     else:
@@ -119,8 +120,8 @@ def to_float_gray(img):
         g = np.empty(img.shape[:2], np.float32)
         for r in range(0, img.shape[0], ROW_BAND):
             g[r:r + ROW_BAND] = img[r:r + ROW_BAND, :, :3].astype(np.float32) @ w
-    if img.dtype == np.uint16:
-        g *= 255.0 / 65535.0
+    if img.dtype == np.uint16:  # at its own bit depth, as detect_skyline reads it (to_8bit)
+        g *= 255.0 / full_scale(img)
     elif img.dtype.kind == "f" and g.size and np.nanmax(g) <= 1.0:
         g *= 255.0
     return g

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError
+from ..formats.images import full_scale
 from .image import downscale_factor, fill_invalid, to_float_gray, trusted
 from .options import NetOptions
 from .path import BIG, column_prefix, solve_path
@@ -53,16 +54,17 @@ STRIDE = 16
 
 def _float_rgb_small(img, size):
     """The colour image (grey replicated) resized to ``size`` (w, h) with area averaging, as
-    float32 in [0, 1] (uint8 / 255, uint16 / 65535, float taken as [0, 1] unless above 1, then
-    / 255, as :func:`.image.to_float_gray`)."""
+    float32 in [0, 1] (uint8 / 255, uint16 over its own bit depth's full scale
+    (:func:`~skyfix.formats.images.full_scale`), float taken as [0, 1] unless above 1, then / 255,
+    as :func:`.image.to_float_gray`)."""
     import cv2
 
     if img.dtype == np.uint8:
         small = cv2.resize(img, size, interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
     else:
         x = img.astype(np.float32)
-        if img.dtype == np.uint16:
-            x /= 65535.0
+        if img.dtype == np.uint16:  # at its own bit depth, as detect_skyline reads it (to_8bit)
+            x /= full_scale(img)
         elif x.size and np.nanmax(x) > 1.0:
             x /= 255.0
         small = cv2.resize(x, size, interpolation=cv2.INTER_AREA)

@@ -50,6 +50,13 @@ def imread_upright(path):
     return imread_whole(path, cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH)
 
 
+def full_scale(img) -> int:
+    """The value white has in a 16-bit image: 2**bits - 1 for the fewest bits, 8 to 16, that hold
+    its largest value (a 12-bit camera's PNG is 0-4095, not 0-65535)."""
+    top = int(img.max()) if img.size else 0
+    return (1 << min(16, max(8, top.bit_length()))) - 1
+
+
 def to_8bit(img):
     """A 16-bit image as uint8 at its effective bit depth (the fewest bits, 8 to 16, that hold its
     largest value: a 12-bit camera's PNG is 0-4095, not 0-65535), other images unchanged. A
@@ -61,9 +68,7 @@ def to_8bit(img):
 
     if getattr(img, "dtype", None) != np.uint16:
         return img
-    top = int(img.max()) if img.size else 0
-    full = (1 << min(16, max(8, top.bit_length()))) - 1
-    out = cv2.convertScaleAbs(img, alpha=255.0 / full)
+    out = cv2.convertScaleAbs(img, alpha=255.0 / full_scale(img))
     out[(out == 0) & (img > 0)] = 1
     return out
 
