@@ -168,6 +168,25 @@ def _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_de
                 feat=feat, conf=conf)
 
 
+def _floor_check(dem, q, sep, config, *, camera_height_m, planet, prior_pitch_deg, prior_roll_deg,
+                 noise):
+    """``one_basin(best, d)`` for :func:`_decide`: whether refined result d lies on the best one's
+    floor of the attitude-refitted cost (:func:`~skyfix.pose.refine.same_basin`, sampled every
+    ``sep / 2`` [m]), said in the log when it does."""
+    renders = Renders(dem, camera_height_m=camera_height_m, planet=planet)
+
+    def one_basin(a, d):
+        same = same_basin(renders, q, (a["x"], a["y"], a["cost"]), (d["x"], d["y"], d["cost"]),
+                          a["att"], spacing_m=sep / 2.0, render_bins=config.render_bins,
+                          prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg,
+                          noise=noise, dem_sigma_m=config.dem_sigma_m)
+        if same:
+            log.info("(%.1f, %.1f) lies in the best answer's basin (no ridge of cost between "
+                     "them): not a rival", d["x"], d["y"])
+        return same
+    return one_basin
+
+
 def _with_map_share(psig, hsig, feat, dem, q, out, noise, config, camera_height_m, planet,
                     prior_pitch_deg, prior_roll_deg):
     """The position sigma [m] and heading sigma [deg] widened by what the map's height error
@@ -350,24 +369,15 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
             st.result = f"best clipped cost {results[0]['cost']:.4f} deg^2" if results else "none"
         _log_refined(results)
         rest = list(cands[config.refine_candidates:])
-        renders = Renders(dem, camera_height_m=camera_height_m, planet=planet)
-
-        def one_basin(a, d):
-            same = same_basin(renders, q, (a["x"], a["y"], a["cost"]), (d["x"], d["y"], d["cost"]),
-                              a["att"], spacing_m=sep / 2.0, render_bins=config.render_bins,
-                              prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg,
-                              noise=noise, dem_sigma_m=config.dem_sigma_m)
-            if same:
-                log.info("(%.1f, %.1f) lies in the best answer's basin (no ridge of cost between "
-                         "them): not a rival", d["x"], d["y"])
-            return same
         # Scenario 2 counts answers 1 m apart as rivals, and one flat valley can be wider: starts
         # that stopped 1.1 m from the best on its floor made the confidence turn on the prior's
         # last decimals (0.80 against 0.49 for priors 1 cm apart). A database's 5 m is wider
         # than such floors (and its calibration cases were not rerun with the check).
+        one_basin = None if db is not None else _floor_check(
+            dem, q, sep, config, camera_height_m=camera_height_m, planet=planet,
+            prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg, noise=noise)
         out = _decide(results, rest, q, noise, relief, sep, prior_pitch_deg, prior_roll_deg,
-                      model, "locate" if db is not None else "locate_prior",
-                      one_basin if db is None else None)
+                      model, "locate" if db is not None else "locate_prior", one_basin)
         if db is not None and (out["conf"] < config.retry_below or
                                out["feat"]["log_rms_over_noise"] > math.log(config.retry_rms_ratio)):
             known = [(d["x"], d["y"]) for d in results] + [(c[0], c[1]) for c in rest]
