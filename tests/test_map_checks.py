@@ -340,3 +340,50 @@ def test_evaluate_profiles_in_the_databases_bins(tmp_path, files):
     assert row["status"] == "ok", row
     assert math.hypot(float(row["fix_x"]) - float(row["truth_x"]),
                       float(row["fix_y"]) - float(row["truth_y"])) < 10.0
+
+
+def test_observable_bins_of_a_level_frame_and_a_panorama():
+    """Closed form: a level pinhole frame of field of view H panned to p covers the azimuths
+    p +- H/2 (every row of a level frame spans them: the widest is the horizon row), widened by
+    the margin; a panorama covers its stated range."""
+    from skyfix.camera import camera_from_fov
+    from skyfix.formats import Acquisition, Frame, PanoramaSpec
+    from skyfix.profile import observable_bins
+    from skyfix.profile.acquisition import OBSERVABLE_MARGIN_DEG as m
+
+    cam = camera_from_fov(640, 480, 30.0)
+    one = Acquisition(root=".", camera=cam, camera_height_m=1.5, frames=(Frame("a", 100.0),))
+    # centres 100 +- (15 + 2) deg at 1 deg bins: 83 .. 117
+    assert observable_bins(one, 360) == int(2 * (15 + m)) + 1
+    two = Acquisition(root=".", camera=cam, camera_height_m=1.5,
+                      frames=(Frame("a", 350.0), Frame("b", 10.0)))
+    assert observable_bins(two, 360) == int(20 + 2 * (15 + m)) + 1  # 323 .. 37 round north
+    pano = Acquisition(root=".", camera=None, camera_height_m=1.5,
+                       panorama=PanoramaSpec("p", azimuth_left_deg=-30.0, hfov_deg=60.0))
+    assert observable_bins(pano, 180) == int((60 + 2 * m) / 2) + 1  # -32 .. 32 at 2 deg bins
+    assert observable_bins(replace_pano(pano, 359.0), 90) == 90
+
+
+def replace_pano(acq, hfov):
+    from dataclasses import replace
+
+    return replace(acq, panorama=replace(acq.panorama, hfov_deg=hfov))
+
+
+def test_a_view_too_narrow_to_search_is_refused_before_detection(tmp_path, files,
+                                                                 detection_forbidden):
+    """A 12 deg lens in one frame can fill at most 16 of 180 bins (32 deg with the margins):
+    the search needs 20. Said before any image is read (detection is the long part)."""
+    from skyfix.camera import camera_from_fov
+    from skyfix.formats import Acquisition, Frame, save_acquisition
+
+    dem_path, _, db_path = files
+    acq = tmp_path / "acq"
+    acq.mkdir()
+    (acq / "f0.png").write_bytes(b"not read")
+    save_acquisition(acq, Acquisition(root=acq, camera=camera_from_fov(1024, 768, 12.0),
+                                      camera_height_m=1.5, frames=(Frame("f0.png", 0.0, 0.0),)))
+    r = _run("locate", acq, "--db", db_path, "--dem", dem_path)
+    assert r.exit_code == 2, r.output
+    assert "can observe at most 9 of the profile's 180 azimuth bins" in r.output
+    assert "needs at least 20" in r.output and "Traceback" not in r.output

@@ -42,6 +42,33 @@ def read_acquisition(acq_dir):
     return load_acquisition(acq_dir)
 
 
+def check_view_width(acq, db, min_bins: int, what: str) -> None:
+    """Refuse, before any image is read, an acquisition whose frames (or panorama) cannot cover
+    ``min_bins`` of the profile's azimuth bins (the database's, else 360) whatever the detector
+    finds: detection takes minutes on a board and its profile would be refused after it."""
+    if acq is None:
+        return
+    from ..profile import observable_bins, profile_bins
+
+    n = profile_bins(db)
+    most = observable_bins(acq, n)
+    if most < min_bins:
+        step = 360.0 / n
+        raise ParameterError(
+            f"the acquisition's {_view_words(acq)} can observe at most {most} of the profile's "
+            f"{n} azimuth bins ({most * step:.0f} deg); {what} needs at least {min_bins} "
+            f"({min_bins * step:.0f} deg of skyline): add frames at other pans or use a wider lens")
+
+
+def _view_words(acq) -> str:
+    if acq.panorama is not None:
+        return f"panorama ({acq.panorama.hfov_deg:g} deg wide)"
+    n = len(acq.frames)
+    return (f"{n} frame{'s' * (n != 1)} (camera {acq.camera.hfov_deg:.1f} deg wide, pans "
+            + ", ".join(f"{f.pan_deg:g}" for f in acq.frames[:6]) + (", ..." if n > 6 else "")
+            + " deg)")
+
+
 def input_files(acq, profile_path, dem_paths) -> list:
     """The files a locate or heading run reads (the acquisition's own, the profile, the DEMs): no
     output may replace one of them."""

@@ -10,8 +10,8 @@ import click
 
 from ..errors import ParameterError
 from ..progress import stage
-from .acqinput import (check_detector, check_source, detector_used, input_files, read_acquisition,
-                       read_profile)
+from .acqinput import (check_detector, check_source, check_view_width, detector_used, input_files,
+                       read_acquisition, read_profile)
 from .main import note
 from .options import check_point_options, dem_sigma, detector_option, point_xy
 
@@ -271,6 +271,9 @@ def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lo
         _check_prior_area(db, dem, prior, prior_radius_m)
         if acq is not None:
             notes += _check_camera_height(db, db_path, acq.camera_height_m)
+            from ..match import PRESETS
+
+            check_view_width(acq, db, PRESETS[preset].min_observed, "a position search")
         st.result = ", ".join(filter(None, [
             f"database of {len(db.x_coords) * len(db.y_coords):,} positions at {db.spacing_m:g} m"
             if db is not None else "", f"DEM {dem.shape[1]} x {dem.shape[0]} cells of {dem.cell_m:g} m"

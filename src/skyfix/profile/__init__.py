@@ -22,7 +22,8 @@ and detection), :mod:`.geometry`, :mod:`.pans` (pan refinement), :mod:`.merge`, 
 :mod:`.stitch`.
 """
 
-from .acquisition import DEFAULT_AZIMUTH_BINS, METHODS, acquisition_profile, profile_bins
+from .acquisition import (DEFAULT_AZIMUTH_BINS, METHODS, acquisition_profile, observable_bins,
+                          profile_bins)
 from .frames import Detector, detect_frames, get_detector, read_rgb
 from .geometry import horizon_rows, levelling_rotation, sample_polyline, skyline_az_el
 from .merge import merge_samples
@@ -31,5 +32,5 @@ from .project import panorama_profile, profile_from_skylines
 
 __all__ = ["DEFAULT_AZIMUTH_BINS", "DEFAULT_REFINEMENT", "METHODS", "Detector", "PanRefinement",
            "acquisition_profile", "detect_frames", "get_detector", "horizon_rows",
-           "levelling_rotation", "merge_samples", "panorama_profile", "profile_bins",
-           "profile_from_skylines", "read_rgb", "refine_pans", "sample_polyline", "skyline_az_el"]
+           "levelling_rotation", "merge_samples", "observable_bins", "panorama_profile",
+           "profile_bins", "profile_from_skylines", "read_rgb", "refine_pans", "sample_polyline", "skyline_az_el"]

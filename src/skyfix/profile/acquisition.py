@@ -11,7 +11,8 @@ import numpy as np
 from ..errors import DetectionError, ParameterError
 from ..formats import Acquisition, Profile, Skyline
 from .frames import Detector, detect_frames, get_detector, read_rgb
-from .geometry import check_bins
+from ..camera import C_CAM_TO_BODY, direction_to_az_el, r_body_mast
+from .geometry import check_bins, levelling_rotation, sample_polyline
 from .pans import DEFAULT_REFINEMENT, PanRefinement
 from .project import panorama_profile, profile_from_skylines
 
@@ -30,6 +31,49 @@ def profile_bins(db=None) -> int:
     (its search takes no other bin count), else :data:`DEFAULT_AZIMUTH_BINS` (a search on the
     DEM alone, or a heading, takes any)."""
     return int(db.azimuth_bins) if db is not None else DEFAULT_AZIMUTH_BINS
+
+
+#: [deg] margin on each side of a frame's azimuths in :func:`observable_bins`: the pan
+#: refinement may move a frame (by far less) and the rows are sampled, not all taken
+OBSERVABLE_MARGIN_DEG = 2.0
+
+
+def observable_bins(acq: Acquisition, azimuth_bins: int = DEFAULT_AZIMUTH_BINS) -> int:
+    """The most azimuth bins a profile of ``acq`` can observe, from its description alone (no
+    image read): the bins whose centres some pixel of some frame (any row, through the mast
+    pointing and the attitude prior), or the panorama's azimuth range, reaches, widened by
+    :data:`OBSERVABLE_MARGIN_DEG`. An upper bound: whatever the detector finds, the profile holds
+    no more, so a view too narrow for a search is refused before detection (minutes on a board).
+    """
+    check_bins(azimuth_bins)
+    step = 360.0 / azimuth_bins
+    centres = np.arange(azimuth_bins) * step
+    if acq.panorama is not None:
+        spec = acq.panorama
+        if spec.hfov_deg + 2 * OBSERVABLE_MARGIN_DEG >= 360.0:
+            return azimuth_bins
+        off = (centres - spec.azimuth_left_deg + OBSERVABLE_MARGIN_DEG) % 360.0
+        return int(np.count_nonzero(off <= spec.hfov_deg + 2 * OBSERVABLE_MARGIN_DEG))
+    cam = acq.camera
+    seen = np.zeros(azimuth_bins, bool)
+    # the image's edges, not its outer pixel centres, bound what it sees
+    u = np.linspace(-0.5, cam.width - 0.5, cam.width + 1)
+    for fr in acq.frames:
+        rot = (levelling_rotation(acq.prior_pitch_deg, acq.prior_roll_deg)
+               @ r_body_mast(fr.pan_deg, fr.tilt_deg) @ C_CAM_TO_BODY)
+        for r in np.linspace(-0.5, cam.height - 0.5, 33):
+            az, _ = direction_to_az_el(cam.pixel_to_ray(u, np.full(u.size, r)) @ rot.T)
+            # only which bin centres the row's azimuths cover counts; columns a bin apart at
+            # most join (a wide lens), a jump (round a pole) does not
+            got, _ = sample_polyline(az, np.zeros_like(az), azimuth_bins,
+                                     max_step_deg=max(2.0, 2 * step))
+            seen |= np.isfinite(got)
+    # widen every observed run by the margin, round the circle
+    k = int(np.ceil(OBSERVABLE_MARGIN_DEG / step))
+    wide = seen.copy()
+    for s in range(1, k + 1):
+        wide |= np.roll(seen, s) | np.roll(seen, -s)
+    return int(wide.sum())
 
 
 def acquisition_profile(acq: Acquisition, *, method: str = "project",
