@@ -387,3 +387,30 @@ def test_a_view_too_narrow_to_search_is_refused_before_detection(tmp_path, files
     assert r.exit_code == 2, r.output
     assert "can observe at most 9 of the profile's 180 azimuth bins" in r.output
     assert "needs at least 20" in r.output and "Traceback" not in r.output
+
+
+def test_a_forced_dem_of_other_terrain_caps_the_confidence_and_the_same_heights_do_not(tmp_path,
+                                                                                     files):
+    """``locate --force`` with another map (the same hills 35 m east) gave a confident fix on
+    terrain the search never compared; the same heights in another file (a checksum apart, here
+    0.1 mm) must keep their confidence. Told apart by re-rendering the database positions at the
+    fix from the DEM given."""
+    from skyfix.dem import load_dem
+    from skyfix.pose.other_map import map_agreement
+
+    dem_path, other_path, db_path = files
+    db = open_database(db_path)
+    prof = _profile(_dem())
+    shifted = load_dem(other_path)
+    assert shifted.checksum != db.dem_sha256
+    fix = locate(prof, db=db, dem=shifted)
+    assert fix.confidence <= DEGENERATE_CAP
+    assert any("another map's terrain" in n for n in fix.notes), fix.notes
+    same = load_dem(write_dem(tmp_path / "same.tif", Dem.from_array(_dem().z + 1e-4, CELL)))
+    assert same.checksum != db.dem_sha256
+    reason, note = map_agreement(db, same, 412.0, 387.0)
+    assert reason is None and "the same terrain" in note
+    fix = locate(prof, db=db, dem=same)
+    assert np.hypot(fix.x - 412.0, fix.y - 387.0) < 1.0
+    assert fix.confidence > 0.5 and any("the same terrain" in n for n in fix.notes), fix.notes
+    assert map_agreement(db, load_dem(dem_path), 412.0, 387.0) == (None, None)

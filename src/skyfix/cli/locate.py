@@ -212,7 +212,9 @@ def _plot(path, fix, mres, db, dem, profile, truth=None):
 @detector_option
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
 @click.option("--force", is_flag=True,
-              help="Use a --dem other than the one the database was built from (the fix says so).")
+              help="Use a --dem other than the one the database was built from. The fix says so, "
+                   "and its confidence is capped at 0.45 unless the DEM's skylines at the fix "
+                   "match the database's (the same heights in another file).")
 def locate(acq_dir, profile_path, db_path, dem_paths, prior_x, prior_y, prior_lon, prior_lat,
            prior_radius_m, out, geojson, score_map, plot, preset, dem_sigma_m, detector, overwrite,
            force):

@@ -46,6 +46,7 @@ from .fix import UNKNOWN_HEADING_SIGMA_DEG, Fix, crs_and_lonlat, prior_disagreem
 from .image_plane import (IMAGE_PLANE_MAX_SPAN_DEG, SOLVES_DISAGREE_CONFIDENCE,
                           image_plane_attitude, view_span_deg)
 from .map_error import fit_map_covariance
+from .other_map import map_agreement
 from .refine import inside_dem, prior_grid, refine_candidates, same_basin
 from .scoring import Renders, clipped_costs, profile_arrays, render_points, robust_scores
 
@@ -443,6 +444,9 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
     basin_conf = conf
     degenerate = degenerate_search(db, dem, fx, fy, prior_xy, prior_radius_m, sep,
                                    config.grid_step_m)
+    other, same = map_agreement(db, dem, fx, fy)
+    degenerate += [other] if other else []
+    notes += [same] if same else []
     span = observed_span_deg(q)
     if span < CALIBRATED_MIN_SPAN_DEG:
         degenerate.append(f"the observed skyline spans {span:.0f} deg, narrower than the "
