@@ -196,3 +196,22 @@ def test_skyline_distance_names_the_point_that_makes_the_skyline():
         assert np.abs(el - hb.elevation_deg[k][ok])[inside].max() < 0.01
         checked += inside.sum()
     assert checked > 400
+
+
+@pytest.mark.parametrize("void_col", [49, 51])
+def test_a_ray_along_a_grid_line_beside_a_void_sees_the_line(void_col):
+    """A ray running exactly along a column line (azimuth 0 from a position on whole cell
+    coordinates, as database grids are) sees the terrain on the line whichever side of it a void
+    lies: with the void east of the line it saw nothing (-1.72 deg) while the mirror saw the
+    peak. Closed form: a 200 m spike 400 m north, atan((200 - h - 0.87 d^2 / 2R) / d)."""
+    z = np.zeros((101, 101), np.float32)
+    z[40, 50] = 200.0
+    z[:75, void_col] = np.nan
+    dem = Dem.from_array(z, 10.0)
+    x, y = dem.colrow_to_xy(50, 80)
+    want = math.degrees(math.atan((200.0 - 1.5 - 0.87 * 400.0**2 / (2 * 6.371e6)) / 400.0))
+    got = render_horizon(dem, x, y, skip_tol_deg=0).elevation_deg[0]
+    assert got[0] == pytest.approx(want, abs=1e-4)
+    # a point on the void's edge has the line's height, not none
+    assert dem.height_at(*dem.colrow_to_xy(50, 60)) == pytest.approx(0.0)
+    assert dem.height_at(*dem.colrow_to_xy(50, 40)) == pytest.approx(200.0)

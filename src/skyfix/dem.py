@@ -106,8 +106,11 @@ class Dem:
         i = np.minimum(np.floor(r).astype(np.int64), ny - 2)
         fu, fv = c - j, r - i
         z = self.z
-        out[ok] = (z[i, j] * (1 - fu) * (1 - fv) + z[i, j + 1] * fu * (1 - fv)
-                   + z[i + 1, j] * (1 - fu) * fv + z[i + 1, j + 1] * fu * fv)
+        # a corner of weight 0 is left out: on a grid line beside a void the height is the
+        # line's own, as it is beside a void on the line's other side
+        out[ok] = sum(np.where(w == 0.0, 0.0, z[a, b] * w) for a, b, w in (
+            (i, j, (1 - fu) * (1 - fv)), (i, j + 1, fu * (1 - fv)), (i + 1, j, (1 - fu) * fv),
+            (i + 1, j + 1, fu * fv)))
         return out if out.ndim else float(out)
 
     def require_inside(self, x, y, what: str = "point", lonlat_options: str = "") -> None:

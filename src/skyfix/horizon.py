@@ -153,8 +153,22 @@ def bilinear(z, u, v):
     i = min(int(math.floor(v)), ny - 2)
     fu = u - j
     fv = v - i
-    return (z[i, j] * (1 - fu) * (1 - fv) + z[i, j + 1] * fu * (1 - fv)
-            + z[i + 1, j] * (1 - fu) * fv + z[i + 1, j + 1] * fu * fv)
+    # a corner of weight 0 is left out, not multiplied: on a grid line beside a void the height
+    # is the line's own (NaN * 0 made it NaN on one side of a void and not the other)
+    h = 0.0
+    w = (1 - fu) * (1 - fv)
+    if w != 0.0:
+        h += z[i, j] * w
+    w = fu * (1 - fv)
+    if w != 0.0:
+        h += z[i, j + 1] * w
+    w = (1 - fu) * fv
+    if w != 0.0:
+        h += z[i + 1, j] * w
+    w = fu * fv
+    if w != 0.0:
+        h += z[i + 1, j + 1] * w
+    return h
 
 
 @njit(cache=True, nogil=True)
@@ -222,10 +236,27 @@ def cell_max(z, i, j, u0, v0, du, dv, zc, curv, t0, t1):
     z01 = z[i, j + 1]
     z10 = z[i + 1, j]
     z11 = z[i + 1, j + 1]
-    if not (math.isfinite(z00) and math.isfinite(z01) and math.isfinite(z10) and math.isfinite(z11)):
-        return -np.inf, t0
     au = u0 - j
     av = v0 - i
+    # A ray along one of the cell's edges sees only that edge's two corners: the other two
+    # have weight 0 all along it and may be void (the cell beside a void's edge), as the
+    # neighbouring cell on the line's other side would say.
+    if du == 0.0:
+        if au == 0.0:
+            z01 = z00
+            z11 = z10
+        elif au == 1.0:  # the DEM's last column: its cell is the one to the west
+            z00 = z01
+            z10 = z11
+    if dv == 0.0:
+        if av == 0.0:
+            z10 = z00
+            z11 = z01
+        elif av == 1.0:
+            z00 = z10
+            z01 = z11
+    if not (math.isfinite(z00) and math.isfinite(z01) and math.isfinite(z10) and math.isfinite(z11)):
+        return -np.inf, t0
     e = z00 - z01 - z10 + z11
     p = z00 + (z01 - z00) * au + (z10 - z00) * av + e * au * av
     b = (z01 - z00) * du + (z10 - z00) * dv + e * (au * dv + av * du)
