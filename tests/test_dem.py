@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -701,3 +702,34 @@ def test_an_earth_datum_named_like_another_body_is_earth():
     from skyfix.planets import EARTH, planet_from_crs
 
     assert planet_from_crs("EPSG:4732") is EARTH
+
+
+def test_scale_error_counts_the_shear_of_a_sinusoidal_projection():
+    """A sinusoidal projection (a common Mars DEM CRS) keeps its meridional and parallel scales
+    near 1 off its central meridian while stretching other directions: the stretch is the
+    largest singular value of the projection's Jacobian in metres per metre, here taken by
+    finite differences on the sphere (independent of PROJ's factors)."""
+    from pyproj import CRS, Transformer
+
+    from skyfix.workcrs import scale_error
+
+    r = 3396190.0
+    crs = CRS.from_proj4(f"+proj=sinu +lon_0=77.5 +R={r} +units=m +no_defs")
+    fwd = Transformer.from_crs(crs.geodetic_crs, crs, always_xy=True)
+    corners = [fwd.transform(lon, lat) for lon in (77.5, 79.0) for lat in (17.5, 19.0)]
+    xs, ys = zip(*corners)
+    bounds = (min(xs), min(ys), max(xs), max(ys))
+    inv = Transformer.from_crs(crs, crs.geodetic_crs, always_xy=True)
+    worst, h = 0.0, 1e-5  # [deg]
+    for x in np.linspace(bounds[0], bounds[2], 5):
+        for y in np.linspace(bounds[1], bounds[3], 5):
+            lon, lat = inv.transform(x, y)
+            east = np.radians(h) * r * math.cos(math.radians(lat))  # [m] on the sphere
+            north = np.radians(h) * r
+            jac = np.array([[(a - b) / (2 * d)
+                             for a, b in zip(fwd.transform(*p1), fwd.transform(*p0))]
+                            for p1, p0, d in (((lon + h, lat), (lon - h, lat), east),
+                                              ((lon, lat + h), (lon, lat - h), north))]).T
+            worst = max(worst, *np.abs(np.linalg.svd(jac, compute_uv=False) - 1.0))
+    assert worst > 0.004  # a stretch the conventions' 0.1 % does not allow
+    assert scale_error(crs, bounds) == pytest.approx(worst, rel=0.02)
