@@ -56,8 +56,27 @@ def collar_cells(void: np.ndarray) -> np.ndarray:
     first = np.argmax(has[rows], axis=1)
     last = has.shape[1] - 1 - np.argmax(has[rows, ::-1], axis=1)
     pts = np.concatenate([np.stack([first, rows], 1), np.stack([last, rows], 1)]).astype(np.int32)
+    poly = cv2.convexHull(pts)
     hull = np.zeros(void.shape, np.uint8)
-    cv2.fillConvexPoly(hull, cv2.convexHull(pts), 1)
+    cv2.fillConvexPoly(hull, poly, 1)
+    # The raster fill also takes cells whose centres lie up to about half a cell outside the
+    # hull (collar cells beside a slanted edge, which filling would extrapolate): the cells on
+    # the fill's rim are tested exactly against the hull's edges.
+    rim = (hull == 1) & void & (cv2.erode(hull, np.ones((3, 3), np.uint8),
+                                           borderType=cv2.BORDER_CONSTANT, borderValue=0) == 0)
+    v = poly.reshape(-1, 2).astype(np.float64)
+    e = np.roll(v, -1, axis=0) - v
+    area = np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1])
+    if v.shape[0] < 3 or area == 0:  # a hull of a line or a point: the raster fill is exact
+        return void & (hull == 0)
+    rr, cc = np.nonzero(rim)
+    for k in range(0, rr.size, 4096):  # every edge against a few thousand cells at a time
+        r, c = rr[k:k + 4096], cc[k:k + 4096]
+        # each edge's cross product with each cell centre, signed so that inside is >= 0
+        cross = (e[:, 0, None] * (r[None, :] - v[:, 1, None])
+                 - e[:, 1, None] * (c[None, :] - v[:, 0, None])) * np.sign(area)
+        out = np.any(cross < -1e-9, axis=0)
+        hull[r[out], c[out]] = 0
     return void & (hull == 0)
 
 
