@@ -126,9 +126,11 @@ def make_executor(workers: int | None = None, scheduler: str | None = None):
     # environment, where every later child would inherit them: put the environment back after.
     environ = dict(os.environ)
     try:
+        # The scheduler serves HTTP even without a dashboard (dashboard_address=None still took
+        # port 8787, and a second build on the host warned in four lines): a free local port.
         with _sigint_ignored(), dask.config.set({PRE_SPAWN: worker_environ()}):
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
+                                   dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
         with cluster, Client(cluster) as client:
             yield client.get_executor(pure=False), n, True
     finally:
