@@ -357,6 +357,11 @@ def test_sweep_groups_shrink_to_keep_every_slot_busy():
     assert max(len(t) for t in tasks_of(big, "sweep", 2)) == 16
     assert sorted(b for t in tasks_of(big, "sweep", 2) for b in t) == big
     assert tasks_of(grid, "kernel", 2) == [[b] for b in grid]
+    # larger blocks, smaller groups: at most 256 positions a side a task (4 x 4 blocks of 256
+    # were a million positions, 9-16 GB a worker)
+    assert max(len(t) for t in tasks_of(big, "sweep", 1, block=128)) == 4
+    assert max(len(t) for t in tasks_of(big, "sweep", 1, block=256)) == 1
+    assert max(len(t) for t in tasks_of(big, "sweep", 1, block=32)) == 16
 
 
 def test_sweep_store_is_the_same_however_its_blocks_are_grouped(dem_path, sweep_db, tmp_path):

@@ -42,6 +42,9 @@ RENDERERS = ("kernel", "sweep")
 #: (4 x 4 blocks of 64: 65,536 positions, about 0.6 GB of working arrays); :func:`tasks_of` halves
 #: it where the build would leave workers without tasks
 SWEEP_GROUP = 4
+#: [positions] side of a sweep task at most, whatever the block size: groups of larger blocks
+#: are smaller (blocks of 256 one to a task; 4 x 4 of them were 1 M positions, 9-16 GB a worker)
+SWEEP_TASK_SIDE = SWEEP_GROUP * 64
 
 
 #: worker-process DEM cache: (path, sha256) -> Dem, so a DEM is read once per process
@@ -169,19 +172,20 @@ def build_blocks(spec: BuildSpec, blocks) -> tuple[int, int]:
     return len(rendered), n
 
 
-def tasks_of(todo, renderer: str, slots: int = 1) -> list[list[tuple[int, int]]]:
+def tasks_of(todo, renderer: str, slots: int = 1, block: int = 64) -> list[list[tuple[int, int]]]:
     """The blocks to build, as tasks: one block each for the kernel; for the sweep, the blocks
     of each square group together (a resumed group renders only its blocks still missing, as one
     rectangle over them).
 
-    A group is :data:`SWEEP_GROUP` blocks on a side, halved while that leaves fewer than two
-    tasks per slot (``slots`` tasks run at once): a 1 x 1 km build at 5 m is one group of 4 x 4,
+    A group is :data:`SWEEP_GROUP` blocks on a side (fewer where blocks of ``block`` positions
+    a side would make it wider than :data:`SWEEP_TASK_SIDE` positions), halved while that leaves
+    fewer than two tasks per slot (``slots`` tasks run at once): a 1 x 1 km build at 5 m is one group of 4 x 4,
     which kept one of two workers idle (9.5 s instead of 12.0 s with groups of 2 x 2, for 18 %
     more CPU). The grouping never changes a value: the sweep's lines lie on a lattice fixed to
     the DEM."""
     if renderer != "sweep":
         return [[b] for b in todo]
-    side = SWEEP_GROUP
+    side = max(1, min(SWEEP_GROUP, SWEEP_TASK_SIDE // int(block)))
     while side > 1 and slots > 1 and len({(br // side, bc // side) for br, bc in todo}) < 2 * slots:
         side //= 2
     groups: dict = {}
