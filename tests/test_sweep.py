@@ -86,6 +86,39 @@ def test_nodata_behind_the_grid_is_skipped_as_the_kernel_skips_it():
     assert np.isfinite(hb.elevation_deg).all()
 
 
+def test_terrain_beside_scattered_voids_is_seen_as_the_kernel_sees_it():
+    """Forty small voids around the grid (a reprojected DEM's wedges are such voids): a line's
+    grid-line crossing read from the cell beyond it, which touched a void, was NaN and the valid
+    piece before it was lost to the hull (0.94 % of bins more than 0.01 deg low, by up to 4.9
+    deg). Now as on terrain without voids."""
+    d0 = fractal_dem(200, 30.0, seed=3)
+    z = d0.z.copy()
+    rng = np.random.default_rng(1)
+    for _ in range(40):
+        i, j = rng.integers(0, 200, 2)
+        z[i:i + rng.integers(1, 8), j:j + rng.integers(1, 8)] = np.nan
+    z[95:106, 95:106] = d0.z[95:106, 95:106]  # the grid's own ground stays
+    dem = Dem(z, d0.x0, d0.y0, 30.0, 30.0, d0.crs_wkt, d0.crs_name, body=d0.body)
+    hb = render_grid(dem, d0.x0 + 95 * 30.0, d0.y0 - 95 * 30.0, 7.0, 20, 20)
+    ref = render_horizons(dem, hb.x, hb.y)
+    np.testing.assert_array_equal(np.isnan(hb.elevation_deg), np.isnan(ref.elevation_deg))
+    d = hb.elevation_deg.astype(np.float64) - ref.elevation_deg
+    assert np.nanmax(d) < 0.0015
+    assert np.nanmean(d < -0.01) < 0.0005 and np.nanmin(d) > -0.5
+
+
+def test_lines_stay_fine_on_a_coarse_grid():
+    """Lines one grid step apart on a 100 m grid saw other terrain than the positions between
+    them (4.8 % of bins more than 0.01 deg low on the Sierra, by up to 9.4 deg): they stay
+    LINE_SPACING_M apart whatever the grid's spacing."""
+    dem = fractal_dem(256, 30.0, relief_m=2_000.0, seed=7)
+    xmin, ymin, xmax, ymax = dem.bounds
+    hb = render_grid(dem, (xmin + xmax) / 2 - 600, (ymin + ymax) / 2 + 600, 100.0, 12, 12)
+    ref = render_horizons(dem, hb.x, hb.y)
+    d = hb.elevation_deg.astype(np.float64) - ref.elevation_deg
+    assert np.nanmean(d < -0.01) < 0.0005 and np.nanmin(d) > -0.5
+
+
 def test_bad_parameters_and_positions_raise_clear_errors():
     dem = fractal_dem(64, 30.0, seed=1)
     x_w, y_n = dem.x0 + 600.0, dem.y0 - 600.0

@@ -45,6 +45,17 @@ def _crossings(c, d, s_a):
     return (k - c) / d, (k + (1.0 if d > 0 else -1.0) - c) / d, abs(1.0 / d)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _in_cell(z, i, j, u, v):
+    """Bilinear height [m] at (u, v) from cell (i, j)'s corners alone, the fractions clamped to
+    the cell: a crossing on the cell's edge read from the piece's own cell, whatever void lies
+    across the edge (:func:`~skyfix.horizon.bilinear` reads the cell a rounding picks)."""
+    fu = min(max(u - j, 0.0), 1.0)
+    fv = min(max(v - i, 0.0), 1.0)
+    return (z[i, j] * (1 - fu) * (1 - fv) + z[i, j + 1] * fu * (1 - fv)
+            + z[i + 1, j] * (1 - fu) * fv + z[i + 1, j + 1] * fu * fv)
+
+
 @njit(cache=True, nogil=True)
 def line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w, arc_tol, near):
     """Terrain along a line from the grid-line crossing at or before ``s_a`` (not before the
@@ -82,10 +93,21 @@ def line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w, arc_tol,
         if kv <= nxt:
             kv += step_v
         h1 = bilinear(z, uc + us * nxt, vc + vs * nxt)
+        mid = 0.5 * (s + nxt)
+        j = min(max(int(math.floor(uc + us * mid)), 0), nx - 2)
+        i = min(max(int(math.floor(vc + vs * mid)), 0), ny - 2)
+        if nxt > s:
+            # Both ends from the piece's own cell: a crossing read from the cell beyond it was
+            # NaN where that cell touches a void (a reprojected DEM's wedges), and the whole
+            # valid piece before it, crest and end, was lost to the hull (skylines 1.5-4.9 deg
+            # low beside voids)
+            h0 = _in_cell(z, i, j, uc + us * s, vc + vs * s)
+            h1 = _in_cell(z, i, j, uc + us * nxt, vc + vs * nxt)
+            if math.isfinite(h0) and (n == 0 or out_s[n - 1] != s):
+                out_s[n] = s
+                out_w[n] = h0 - curv * s * s
+                n += 1
         if uv != 0.0 and nxt > s and math.isfinite(h0) and math.isfinite(h1):
-            mid = 0.5 * (s + nxt)
-            j = min(max(int(math.floor(uc + us * mid)), 0), nx - 2)
-            i = min(max(int(math.floor(vc + vs * mid)), 0), ny - 2)
             q = (z[i, j] - z[i, j + 1] - z[i + 1, j] + z[i + 1, j + 1]) * uv
             if q < 0.0:  # concave: its vertex, if inside the piece, and points along it
                 d = nxt - s
