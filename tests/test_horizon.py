@@ -215,3 +215,15 @@ def test_a_ray_along_a_grid_line_beside_a_void_sees_the_line(void_col):
     # a point on the void's edge has the line's height, not none
     assert dem.height_at(*dem.colrow_to_xy(50, 60)) == pytest.approx(0.0)
     assert dem.height_at(*dem.colrow_to_xy(50, 40)) == pytest.approx(200.0)
+
+
+def test_a_ray_limit_shorter_than_where_rays_start_and_an_infinite_planet_are_refused():
+    """--max-distance-m 0.05 gave every bin empty without a word; --planet inf a flat world whose
+    radius the JSON wrote as null."""
+    dem = plane_dem(2_000.0, 10.0)
+    x, y = (dem.bounds[0] + dem.bounds[2]) / 2, (dem.bounds[1] + dem.bounds[3]) / 2
+    with pytest.raises(ParameterError, match="more than 0.1 m"):
+        render_horizons(dem, [x], [y], max_distance_m=0.05)
+    for spec in ("inf", 1e400, "nan"):
+        with pytest.raises(ParameterError, match="finite number of metres"):
+            get_planet(spec)

@@ -78,8 +78,11 @@ def _check(dem: Dem, x, y, camera_height_m, azimuth_bins, max_distance_m, height
         raise ParameterError(f"camera height must be >= 0 m, got {camera_height_m}")
     if int(azimuth_bins) != azimuth_bins or azimuth_bins <= 0:
         raise ParameterError(f"azimuth bins must be a positive whole number, got {azimuth_bins}")
-    if max_distance_m is not None and not max_distance_m > 0:
-        raise ParameterError(f"maximum distance must be > 0 m, got {max_distance_m}")
+    if max_distance_m is not None and not max_distance_m > T_MIN_M:
+        # rays start T_MIN_M out (the camera's own cell is no skyline): a shorter limit left
+        # every bin empty, without a word
+        raise ParameterError(f"maximum distance must be more than {T_MIN_M:g} m (where rays "
+                             f"start), got {max_distance_m}")
     if heights:  # (a stack member is rendered from the stack's ground, which was checked)
         dem.require_inside(x, y)
 

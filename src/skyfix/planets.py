@@ -6,6 +6,8 @@ A terrain point at horizontal distance ``d`` appears lower than on a flat world 
 
 from __future__ import annotations
 
+import math
+
 import re
 
 from dataclasses import dataclass
@@ -63,6 +65,9 @@ def get_planet(spec: str | float | Planet) -> Planet:
         raise ParameterError(
             f"unknown planet {spec!r}: use 'earth', 'mars', 'moon' or a radius in metres"
         ) from None
+    if not math.isfinite(radius):  # inf passed as a flat world, its radius written as null
+        raise ParameterError(f"planet radius must be a finite number of metres, got {spec!r} (a "
+                             "flat world has no radius: give the body's)")
     if not radius >= MIN_RADIUS_M:
         raise ParameterError(f"planet radius must be at least {MIN_RADIUS_M:g} m (no body with a DEM "
                              f"is smaller: Itokawa's mean radius is ~165 m), got {radius:g}; give it "
