@@ -323,9 +323,26 @@ def test_demo_reruns_over_its_own_output(tmp_path, stub_build):
     (out / "acquisition").mkdir()
     r = run("demo", "--out", out)
     assert isinstance(r.exception, Reached), r.output
-    # an output from before the marker: summary.json and only the demo's files
+    # an output from before the marker: the demo's own summary.json beside its skylines.zarr
     (out / ".skyfix-demo").unlink()
+    (out / "summary.json").write_text(json.dumps({"fix": {}, "truth": {}, "timings_s": {},
+                                                  "files": []}))
+    (out / "skylines.zarr").mkdir()
     assert isinstance(run("demo", "--out", out).exception, Reached)
+
+
+def test_demo_refuses_a_users_summary_and_fix(tmp_path, stub_build):
+    """A user's folder holding a summary.json and a fix.json of their own passed as an earlier
+    demo's (the names alone were checked) and was overwritten, then marked as the demo's."""
+    out = tmp_path / "myrun"
+    out.mkdir()
+    (out / "summary.json").write_text('{"my": "results"}')
+    (out / "fix.json").write_text('{"x": 1}')
+    before = snapshot(out)
+    r = run("demo", "--out", out)
+    assert r.exit_code == 2, (r.output, r.exception)
+    assert "not an earlier skyfix demo" in r.output
+    assert snapshot(out) == before
 
 
 def test_demo_refuses_a_bad_seed_before_building(tmp_path, stub_build):
@@ -419,3 +436,22 @@ def test_evaluate_refuses_a_tilt_only_scom_would_ignore(dem, tmp_path, monkeypat
         r = run("evaluate", "--dem", dem, "--scenario", 2, "--sets", sets, *extra, "--cases", 1,
                 "--out", out)
         assert isinstance(r.exception, Reached), r.output
+
+
+def test_quiet_demo_says_no_stage_lines_and_draws_no_bar(tmp_path, monkeypatch):
+    """``skyfix -q demo`` drew the database build's progress bar and printed every stage line."""
+    import skyfix.database as database
+
+    seen = {}
+
+    def stub(*a, **k):
+        seen["progress"] = k.get("progress")
+        raise Reached
+
+    monkeypatch.setattr(database, "build_database", stub)
+    r = run("-q", "demo", "--out", tmp_path / "q")
+    assert isinstance(r.exception, Reached), r.output
+    assert seen["progress"] is False and "1/4" not in r.output and "DEM:" not in r.output
+    r = run("demo", "--out", tmp_path / "loud")
+    assert isinstance(r.exception, Reached), r.output
+    assert seen["progress"] is True and "1/4 building" in r.output

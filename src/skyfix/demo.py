@@ -30,14 +30,26 @@ DEMO_MARKER = ".skyfix-demo"
 def is_demo_output(out: Path) -> bool:
     """Whether folder ``out`` holds only what an earlier demo wrote (and so may be rebuilt).
 
-    It must carry the marker (or, from before the marker, a ``summary.json``) and nothing but
-    the demo's own outputs and hidden temporary files: a user's folder that merely contains an
-    ``acquisition/`` is not a demo output.
+    It must carry the marker (or, from before the marker, the demo's own ``summary.json`` beside
+    its ``skylines.zarr``) and nothing but the demo's own outputs and hidden temporary files: a
+    user's folder that merely contains an ``acquisition/``, or a ``summary.json`` and a
+    ``fix.json`` of their own, is not a demo output.
     """
     names = {p.name for p in out.iterdir()}
-    if DEMO_MARKER not in names and "summary.json" not in names:
+    if not all(n in DEMO_OUTPUTS or n == DEMO_MARKER or n.startswith(".") for n in names):
         return False
-    return all(n in DEMO_OUTPUTS or n == DEMO_MARKER or n.startswith(".") for n in names)
+    return DEMO_MARKER in names or ("skylines.zarr" in names and _demo_summary(out / "summary.json"))
+
+
+def _demo_summary(path: Path) -> bool:
+    """Whether ``path`` is a summary the demo wrote (its keys), not a user's file of that name."""
+    import json
+
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and {"fix", "truth", "timings_s", "files"} <= set(data)
 
 
 def check_demo_out(out: Path, overwrite: bool) -> None:
@@ -68,7 +80,7 @@ def find_demo_dem(out: Path, say=print) -> Path:
 
 
 def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int = 4,
-             overwrite: bool = False, say=print) -> dict:
+             overwrite: bool = False, say=print, tell=None, progress: bool = True) -> dict:
     """Run the whole pipeline once; returns the fix, its error and the files written.
 
     area_m : [m] side of the square search area (database grid) at the DEM's centre
@@ -76,6 +88,9 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
     seed : whole number >= 0, where the rover is hidden
     overwrite : replace the demo's files in a non-empty ``out`` that is not an earlier demo's
         output (an earlier demo's output is rebuilt without it, so the quick start can be rerun)
+    say, tell : where the stage lines and the result lines (the fix, the truth) go; ``tell``
+        defaults to ``say``
+    progress : draw the database build's progress bar
     """
     from ._io import write_json
     from .database import build_database, open_database
@@ -111,7 +126,8 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
     say(f"1/4 building a skyline database: {area_m:.0f} x {area_m:.0f} m at {spacing_m:g} m "
         f"({(int(area_m / spacing_m) + 1) ** 2} skylines x 360 azimuths)")
     db_path = out / "skylines.zarr"
-    build_database(dem_path, db_path, bounds, spacing_m, workers=0, overwrite=True, progress=True)
+    build_database(dem_path, db_path, bounds, spacing_m, workers=0, overwrite=True,
+                   progress=progress)
     timings["build_db_s"] = time.perf_counter() - t0
 
     rng = np.random.default_rng(seed)
@@ -170,7 +186,11 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
                                          f"{frame.tilt_deg:.0f} deg, detected skyline")
     summary = {
         "fix": fix.to_dict(),
-        "truth": {"x": truth.x, "y": truth.y, "yaw_deg": truth.yaw_deg, "pitch_deg": truth.pitch_deg,
+        # headings as the fix gives them (conventions.md): from true north, the grid's beside it
+        "truth": {"x": truth.x, "y": truth.y, "heading_deg": res.truth_heading_deg,
+                  "grid_heading_deg": truth.yaw_deg,
+                  "meridian_convergence_deg": res.truth_meridian_convergence_deg,
+                  "yaw_deg": truth.yaw_deg, "pitch_deg": truth.pitch_deg,
                   "roll_deg": truth.roll_deg},
         "position_error_m": res.position_error_m, "heading_error_deg": res.heading_error_deg,
         "timings_s": timings,
@@ -178,10 +198,11 @@ def run_demo(out, *, area_m: float = 1500.0, spacing_m: float = 10.0, seed: int 
                   str(acq_dir)],
     }
     write_json(out / "summary.json", summary)
-    say(f"fix: x {fix.x:.1f} m, y {fix.y:.1f} m ({fix.crs}), heading {fix.heading_deg:.2f} deg from "
+    tell = say if tell is None else tell
+    tell(f"fix: x {fix.x:.1f} m, y {fix.y:.1f} m ({fix.crs}), heading {fix.heading_deg:.2f} deg from "
         f"true north (grid {fix.grid_heading_deg:.2f}), pitch {fix.pitch_deg:.2f}, roll "
         f"{fix.roll_deg:.2f}, confidence {fix.confidence:.2f}")
-    say(f"truth: x {truth.x:.1f} m, y {truth.y:.1f} m, heading {res.truth_heading_deg:.2f} deg from true north "
+    tell(f"truth: x {truth.x:.1f} m, y {truth.y:.1f} m, heading {res.truth_heading_deg:.2f} deg from true north "
         f"-> position error {res.position_error_m:.2f} m, heading error {res.heading_error_deg:.2f} deg")
     say("times: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in timings.items()))
     say(f"wrote {out / 'fix.json'}, {out / 'summary.json'} and the figures {overlay.name}, "

@@ -21,5 +21,9 @@ def demo(out, seed, overwrite):
 
     require("matplotlib", "skyfix demo (its figures)")
 
+    from ..progress import bars_shown
+
+    shown = bars_shown()  # -q: the fix and its error only, no stage lines or progress bar
     with writing_to(out):
-        run_demo(out, seed=seed, overwrite=overwrite, say=click.echo)
+        run_demo(out, seed=seed, overwrite=overwrite, say=click.echo if shown else lambda m: None,
+                 tell=click.echo, progress=shown)
