@@ -172,3 +172,43 @@ def test_scenario_3_has_no_position_columns_and_counts_failures_at_their_offset(
     assert by[10.0]["cases"] == 2 and by[10.0]["failed"] == 1
     assert by[10.0]["within_1deg_pct"] == 50.0 and by[10.0]["head_err_med_deg"] == pytest.approx(0.5)
     assert by[20.0]["cases"] == 1 and by[20.0]["within_2deg_pct"] == 0.0
+
+
+def test_the_error_cdf_shows_errors_below_a_tenth_of_a_metre(tmp_path, monkeypatch):
+    """A set whose errors all lay under 0.1 m had no visible curve (the axis started there)."""
+    pytest.importorskip("matplotlib")
+    import skyfix.report as report
+
+    seen = {}
+
+    def keep(fig, path):
+        seen["xlim"] = fig.axes[0].get_xlim()
+        seen["lines"] = [ln.get_xdata() for ln in fig.axes[0].get_lines()]
+        return path
+
+    monkeypatch.setattr(report, "save_figure", keep)
+    cases = [_case("OCCL", dx, 0.0, 0.9, scenario=2) for dx in (0.012, 0.03, 0.06)]
+    cases.append(_case("OCCL", 0.5, 0.0, 0.9, scenario=2, status="no skyline"))
+    report.plot_error_cdfs(cases, tmp_path / "cdf.png", 2)
+    assert seen["xlim"][0] == pytest.approx(0.01)
+    xs = seen["lines"][0]
+    assert xs[0] == pytest.approx(0.01) and min(xs[1:]) == pytest.approx(0.012)
+
+
+def test_memory_has_its_own_table_and_times_theirs():
+    from skyfix.report import memory_rows, timing_rows
+
+    cases = [_case("REF", 1.0, 0.0, 0.9), _case("REF", 1.0, 0.0, 0.9)]
+    cases[0].peak_rss_mb, cases[1].peak_rss_mb = 300.0, 420.0
+    assert all(r["stage"] != "" and "RSS" not in r["stage"] for r in timing_rows(cases, 1))
+    assert memory_rows(cases)[0]["max_mb"] == pytest.approx(420.0)
+
+
+def test_evaluate_overwrite_removes_the_earlier_runs_outputs_only(tmp_path):
+    from skyfix.evaluate import clear_outputs
+
+    for name in ("overlay_REF_case_000.png", "results.csv", "report.html", "notes.txt"):
+        (tmp_path / name).write_text("x")
+    (tmp_path / "cases" / "REF").mkdir(parents=True)
+    clear_outputs(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]

@@ -256,6 +256,8 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
     for s_i, set_name in enumerate(cfg.sets):  # an area outside the DEM, or mostly void there
         plan_set(dem, set_name, cfg.cases, cfg.seed + s_i, area=area,
                  camera_height_m=cfg.camera_height_m, planet=cfg.planet)
+    if overwrite and out.is_dir():
+        clear_outputs(out)  # the folder describes one run: no overlay or case of the last one
     out.mkdir(parents=True, exist_ok=True)
     results: list[CaseResult] = []
     features: list[dict] = []
@@ -288,6 +290,22 @@ def evaluate(dem_path, cfg: EvalConfig, out, *, db_path=None, overwrite: bool = 
     return write_outputs(out, results, examples, cfg, dem, command=command)
 
 
+#: what an evaluation writes into its folder (and ``overlay_*.png``): all that --overwrite removes
+EVAL_OUTPUTS = ("cases", "results.csv", "tables.txt", "tables.md", "report.html", "error_cdf.png",
+                "reliability.png", "calibration.jsonl")
+
+
+def clear_outputs(out: Path) -> None:
+    """Remove an earlier evaluation's outputs from ``out`` (and nothing else in it)."""
+    import shutil
+
+    for p in [out / n for n in EVAL_OUTPUTS] + sorted(out.glob("overlay_*.png")):
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        elif p.exists() or p.is_symlink():
+            p.unlink()
+
+
 CALIBRATION_KEYS = {1: "locate", 2: "locate_prior", 3: "heading"}
 
 
@@ -303,9 +321,9 @@ def calibration_row(res: CaseResult, features: dict, dem) -> dict:
 
 
 def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command: str) -> Path:
-    from .report import (case_rows, format_table, heading_vs_prior_rows, plot_error_cdfs,
-                         plot_reliability, reliability_rows, sigma_coverage_rows, summary_rows,
-                         timing_rows, write_report_html, write_results_csv)
+    from .report import (case_rows, format_table, heading_vs_prior_rows, memory_rows,
+                         plot_error_cdfs, plot_reliability, reliability_rows, sigma_coverage_rows,
+                         summary_rows, timing_rows, write_report_html, write_results_csv)
 
     write_results_csv(results, out / "results.csv")
     tables = [("Results per set", summary_rows(results))]
@@ -313,7 +331,8 @@ def write_outputs(out: Path, results, examples, cfg: EvalConfig, dem, *, command
         tables.append(("Heading error vs prior position error", heading_vs_prior_rows(results)))
     tables.append(("Confidence reliability", reliability_rows(results)))
     tables.append(("How often the 1-sigmas cover the errors", sigma_coverage_rows(results)))
-    tables.append(("Time and memory per stage (rover CPU ~30x slower)", timing_rows(results, cfg.scenario)))
+    tables.append(("Time per stage (rover CPU ~30x slower)", timing_rows(results, cfg.scenario)))
+    tables.append(("Memory", memory_rows(results)))
     text = "\n\n".join(f"{h}\n{format_table(rows)}" for h, rows in tables)
     _write_text(out / "tables.txt", text + "\n")
     _write_text(out / "tables.md", "\n\n".join(f"### {h}\n\n{format_table(rows, 'markdown')}"
@@ -378,7 +397,9 @@ def plot_skyline_overlay(path, res: CaseResult, profile, dem, cfg: EvalConfig, *
         body = body_profile(world, yaw, np.nan_to_num(pitch), np.nan_to_num(roll), n_bins=n,
                             prior_pitch_deg=prior_pitch_deg, prior_roll_deg=prior_roll_deg)
         ax.plot(az, body, label=label, **style)
-    ax.plot(az, profile.elevation_deg, ".", ms=2, color="k", label="measured (detected)")
+    ax.plot(az, profile.elevation_deg, ".", ms=2, color="k",
+            label="measured (exact skylines: detection bypassed)" if cfg.skylines == "truth"
+            else "measured (detected)")
     ax.set_xlim(0, 360)
     ax.set_xlabel("azimuth from the rover's forward axis [deg]")
     ax.set_ylabel("elevation [deg]")
