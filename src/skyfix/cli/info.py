@@ -138,7 +138,8 @@ def _dem_lines(d: dict):
     yield "body", f"{body['name']} (R {body['radius_m']:.0f} m, refraction k {body['refraction_k']:g})"
     yield "work crs", (f"{d['work_crs']}" + (" (reprojected)" if d["reprojected"] else " (the DEM's own)"))
     yield "extent", (f"x {d['bounds_m'][0]:.1f}..{d['bounds_m'][2]:.1f}, y {d['bounds_m'][1]:.1f}.."
-                     f"{d['bounds_m'][3]:.1f} m ({d['size_m'][0] / 1000:.2f} x {d['size_m'][1] / 1000:.2f} km); "
+                     f"{d['bounds_m'][3]:.1f} m ({d['size_m'][0] / 1000:.2f} x {d['size_m'][1] / 1000:.2f} km "
+                     "between the outer cells' centres, where heights are defined); "
                      f"lon {w:.5f}..{e:.5f}, lat {s:.5f}..{n:.5f} deg")
     yield "cells", f"{d['shape'][1]} x {d['shape'][0]} of {d['cell_m'][0]:.3f} x {d['cell_m'][1]:.3f} m"
     yield "heights", f"{d['height_m'][0]:.1f} .. {d['height_m'][1]:.1f} m; {d['voids']}"
