@@ -826,3 +826,14 @@ def test_an_area_given_near_the_end_of_the_data_is_drawn_as_given_with_a_warning
     with caplog.at_level(logging.WARNING, logger="skyfix.simulate"):
         plan_set(dem, "REF", 5, 1, area=inside)
     assert not [r for r in caplog.records if "lie within" in r.getMessage()]
+
+
+@pytest.mark.parametrize("tilt_deg", [-60.0, -85.0, -89.9])
+def test_a_ray_steeply_down_meets_the_ground_below_the_camera(tilt_deg):
+    """Closed form on flat ground: a ray ``a`` below the horizontal from 1.5 m up meets it at
+    1.5 / sin(a). One steeper than 86 deg was already under the ground where the search began
+    (0.1 m out) and got a hit 57 m along it, below the ground."""
+    dem = Dem.from_array(np.zeros((50, 50), np.float32), 10.0)
+    o = camera_centre(dem, 245.0, 245.0, 1.5)
+    r = cast_image(dem, o, Projection.frame(Camera(5, 5, 3.0, 3.0, 2.0, 2.0), 0, 0, 0, 0, tilt_deg))
+    assert r.distance[2, 2] == pytest.approx(1.5 / math.sin(math.radians(-tilt_deg)), rel=1e-4)

@@ -315,7 +315,10 @@ def _first_hit(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, tan_el, t_end,
         b = (z01 - z00) * du + (z10 - z00) * dv + e * (au * dv + av * du)
         q = e * du * dv
         # t f(t) - t tan_el = (p - zc) + (b - tan_el) t + (q - curv) t**2 >= 0
-        s = _first_root(t, t_exit, p - zc, b - tan_el, q - curv)
+        # From the camera itself in the first cell: a ray steep enough to meet the ground within
+        # t_min (more than 86 deg down at 1.5 m) is already under it there, and was given t_min
+        # (a hit tens of metres away along the ray, below the ground)
+        s = _first_root(0.0 if t <= t_min else t, t_exit, p - zc, b - tan_el, q - curv)
         if s >= 0.0:
             return s
         t = t_exit + eps_t
