@@ -36,7 +36,7 @@ from .camera import Camera, r_world_body, r_world_cam
 from .dem import Dem
 from .formats import PanoramaSpec
 from .horizon import T_MIN_M, edge_distance, packed_pyramid, pyramid_block
-from .planets import get_planet
+from .planets import resolve_planet
 
 #: projection codes of the kernels
 PINHOLE, EQUIRECT = 0, 1
@@ -139,14 +139,17 @@ def _rocks_array(rocks) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(rocks, np.float64).reshape(-1, 5))
 
 
-def cast_image(dem: Dem, origin, proj: Projection, *, planet="earth", rocks=None,
+def cast_image(dem: Dem, origin, proj: Projection, *, planet=None, rocks=None,
                max_distance_m: float | None = None) -> CastResult:
     """Cast one ray per pixel centre (u = column, v = row, integers) of ``proj``.
 
     origin : (3,) camera centre [m] (see :func:`camera_centre`)
+    planet : curvature and refraction; None (default): the DEM's body, as
+        :func:`~skyfix.horizon.render_horizons` takes it (Earth was the default here, a Mars DEM's
+        frames rendered with Earth's curvature)
     rocks : (K, 5) ellipsoids ``(x, y, z, radius_h, radius_v)`` [m], or None
     """
-    planet = get_planet(planet)
+    planet = resolve_planet(planet, getattr(dem, "body", None))  # the DEM's body by default
     data, offs, rows, cols = packed_pyramid(dem)
     H, W = proj.height, proj.width
     direction = np.empty((H, W, 3), np.float32)
@@ -162,7 +165,7 @@ def cast_image(dem: Dem, origin, proj: Projection, *, planet="earth", rocks=None
     return CastResult(direction, terrain_t, rock_s, rock_id, normal, o)
 
 
-def column_skyline(dem: Dem, origin, proj: Projection, sky_mask: np.ndarray, *, planet="earth",
+def column_skyline(dem: Dem, origin, proj: Projection, sky_mask: np.ndarray, *, planet=None,
                    rocks=None, max_distance_m: float | None = None, iterations: int = 30) -> np.ndarray:
     """Sub-pixel skyline row per column [px], NaN where the column has no sky-to-ground edge.
 
@@ -173,7 +176,7 @@ def column_skyline(dem: Dem, origin, proj: Projection, sky_mask: np.ndarray, *, 
 
     sky_mask : bool (H, W), True where the pixel-centre ray is sky for the same surfaces
     """
-    planet = get_planet(planet)
+    planet = resolve_planet(planet, getattr(dem, "body", None))  # the DEM's body by default
     data, offs, rows, cols = packed_pyramid(dem)
     out = np.empty(proj.width)
     _skyline_kernel(dem.z, data, offs, rows, cols, dem.x0, dem.y0, dem.dx, dem.dy,
@@ -184,12 +187,12 @@ def column_skyline(dem: Dem, origin, proj: Projection, sky_mask: np.ndarray, *, 
     return out
 
 
-def ground_hits(dem: Dem, origin, proj: Projection, u, v, *, planet="earth", rocks=None,
+def ground_hits(dem: Dem, origin, proj: Projection, u, v, *, planet=None, rocks=None,
                 max_distance_m: float | None = None) -> np.ndarray:
     """True where the ray through the continuous pixel position (u = column, v = row) [px] meets
     the terrain of ``dem`` (or one of ``rocks``): the test :func:`column_skyline` bisects with,
     for callers that combine several surfaces (a DEM stack)."""
-    planet = get_planet(planet)
+    planet = resolve_planet(planet, getattr(dem, "body", None))  # the DEM's body by default
     data, offs, rows, cols = packed_pyramid(dem)
     u = np.ascontiguousarray(u, np.float64).ravel()
     v = np.ascontiguousarray(v, np.float64).ravel()
