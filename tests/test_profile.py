@@ -365,6 +365,26 @@ def test_stitch_fails_clearly_on_featureless_frames():
         stitch_panorama(acq, images=flat)
 
 
+@pytest.mark.parametrize("pans, full", [([300.0, 330.0, 0.0, 30.0], False),
+                                         ([0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0],
+                                          True)])
+def test_stitch_closes_the_loop_only_on_a_full_turn(monkeypatch, pans, full):
+    """A 135 deg arc across north (pans 300 .. 30) was taken for a full turn (max - min pans)."""
+    import skyfix.profile.stitch as st
+
+    class Seen(Exception):
+        pass
+
+    def spy(images, *a, wrap=None, **k):
+        raise Seen(wrap)
+
+    monkeypatch.setattr(st, "stitch_rotations", spy)
+    cam = camera_from_fov(200, 150, 45.0)
+    with pytest.raises(Seen) as got:
+        st.stitch_panorama(make_acq(cam, pans), images=[np.zeros((150, 200, 3), np.uint8)] * len(pans))
+    assert got.value.args[0] is full
+
+
 def test_stitch_takes_frames_in_pan_order_however_they_are_listed(tmp_path):
     """Only neighbours in the sequence are matched: frames listed out of pan order were dropped
     as matching none (2 of 4 stitched, 'no good match with its neighbours'). Listed in any

@@ -24,6 +24,7 @@ import numpy as np
 from ..camera import C_CAM_TO_BODY, r_body_mast
 from ..errors import DetectionError
 from ..formats import Acquisition, PanoramaSpec, Profile
+from ..north import arc_span_deg
 from .frames import Detector, get_detector, read_rgb
 from .geometry import levelling_rotation
 from .project import panorama_profile
@@ -197,8 +198,9 @@ def _stitch_in_order(acq: Acquisition, images: list[np.ndarray], use_nominal: bo
     images = [_undistorted(acq, im) for im in images]
     n = len(images)
     pans = np.array([f.pan_deg for f in acq.frames])
-    span = (pans.max() - pans.min()) + cam.hfov_deg
-    wrap = span >= 360.0
+    # the smallest arc holding the frames: pans of 300, 330, 0 and 30 deg are a 135 deg arc across
+    # north, not a full turn (max - min took them for one, and matched the loop's "ends")
+    wrap = arc_span_deg(pans, cam.hfov_deg) >= 360.0
     if n == 1:
         kept, rots, report = [0], [np.eye(3)], []
     else:
