@@ -338,6 +338,24 @@ def test_coarse_index_pass_reaches_every_position(indexed_store, disc):
     assert np.allclose(sub.score_map[scored], exact.score_map[scored], rtol=1e-5, atol=1e-4)
 
 
+@pytest.mark.parametrize("centre, radius", [((522.0, 642.0), 7.0), ((529.0, 651.0), 13.0), ((530.0, 650.0), 31.0),
+                                            ((521.0, 641.0), 33.0)])
+def test_a_small_prior_disc_is_searched_from_the_coarse_index(indexed_store, centre, radius):
+    """Nodes kept out to the disc's radius plus a node's reach may have no position inside the
+    disc beside them: with only such nodes the search failed (IndexError on an empty set), with
+    some they took exact slots and scored nothing. Every position inside is scored, as by the
+    exhaustive search."""
+    _, db = indexed_store
+    q = db.profiles_at(600.0, 500.0)[0].astype(float)
+    kw = dict(prior_xy=centre, prior_radius_m=radius)
+    exact = match_database(db, q, MatchConfig(coarse_factor=1), **kw)
+    fast = match_database(db, q, MatchConfig(), **kw)
+    assert fast.timing["coarse_index"] and fast.n_positions == exact.n_positions >= 1
+    assert fast.n_scored_exact == exact.n_positions
+    best = exact.candidates[0]
+    assert (fast.candidates[0].x, fast.candidates[0].y) == (best.x, best.y)
+
+
 def test_coarse_index_search_finds_the_exact_winner_and_reads_fewer_blocks(indexed_store):
     """Off-grid truths, 0.2 deg noise, full turns with 0-10 deg tilts: the search from the coarse
     index returns the exhaustive exact search's best position and heading, the search over

@@ -49,8 +49,11 @@ class MatchConfig:
     remove_tilt : also fit the first azimuthal harmonic (small pitch/roll errors)
     coarse_factor : bins averaged in the coarse pre-pass (1 = exact scoring everywhere); for a
         store whose bins it does not divide, the largest factor below it that does
-    keep_fraction : share of each slice's positions scored exactly after the coarse pass
-    keep_min : at least this many per slice are scored exactly
+    keep_fraction : share of each slice's positions scored exactly after the coarse pass (from
+        the coarse index, of the store's, a node counted as its 3 x 3 neighbourhood: those
+        overlap, so about 85 % of it is scored)
+    keep_min : at least this many per slice (from the coarse index, in all; every position of a
+        smaller prior disc) are scored exactly
     coarse_stride : the coarse pass scores every ``coarse_stride``-th position along rows and
         columns only; each survivor's neighbours within ``coarse_stride - 1`` positions are then
         scored exactly (1 = every position in the coarse pass). Measured on the 7 x 7 km Sierra
@@ -135,7 +138,7 @@ class MatchResult:
 
     rows, cols : int (m,) grid positions scored exactly; scores : float32 (m,) [deg^2] their exact
     score; headings : float32 (m,) [deg] their best heading. Only the positions the coarse pass
-    kept are held (3 % of a database): the full (ny, nx) maps are :attr:`score_map` and
+    kept are held (about 2.5 % of a database): the full (ny, nx) maps are :attr:`score_map` and
     :attr:`heading_map`, built when asked for (two 7.9 MB arrays on the 7 x 7 km database at 5 m
     that a rover's search does not need).
     shape : (ny, nx); n_scored_exact, n_positions : counts; timing : seconds per phase
