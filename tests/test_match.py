@@ -409,3 +409,18 @@ def test_a_narrow_view_is_searched_from_the_coarse_index(indexed_store):
         for got in (idx, full):
             c, e = got.candidates[0], exact.candidates[0]
             assert (c.row, c.col) == (e.row, e.col) and abs(c.heading_deg - e.heading_deg) < 1e-3
+
+
+def test_a_scattered_profile_the_exact_search_takes_is_searched_fast_too(indexed_store):
+    """Every fourth bin observed (90 of 360): enough to match, but no coarse bin holds half its
+    bins, and the fast search refused it ("0 observed azimuth bins", of the coarse query)."""
+    _, db = indexed_store
+    q0 = db.profiles_at(600.0, 500.0)[0].astype(float)
+    sparse = np.full(q0.size, np.nan)
+    sparse[::4] = q0[::4]
+    fast = match_database(db, sparse, MatchConfig())
+    exact = match_database(db, sparse, MatchConfig(coarse_factor=1))
+    best = exact.candidates[0]
+    assert (fast.candidates[0].x, fast.candidates[0].y) == (best.x, best.y) == (600.0, 500.0)
+    with pytest.raises(ParameterError, match="one row of azimuth bins"):
+        match_database(db, q0[None], MatchConfig())

@@ -228,6 +228,9 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
 
     q = np.asarray(query_deg, np.float64)
     n = int(db.azimuth_bins)
+    if q.ndim != 1:  # a (1, n) array passed the size check and failed deep in numpy
+        raise ParameterError(f"the profile must be one row of azimuth bins, got an array of shape "
+                             f"{q.shape}")
     if q.size != n:
         raise ParameterError(f"the profile has {q.size} azimuth bins but the database {n}; "
                              f"make it with `skyfix profile --azimuth-bins {n}`")
@@ -247,8 +250,15 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
         stride = 1
         indexed = False
     query = prepare_query(q, config.remove_tilt, config.min_observed)
-    coarse_q = dense_query(prepare_query(decimate_query(q, f), config.remove_tilt,
-                                         max(4, config.min_observed // f))) if f > 1 else None
+    coarse_q = None
+    if f > 1:
+        try:
+            coarse_q = dense_query(prepare_query(decimate_query(q, f), config.remove_tilt,
+                                                 max(4, config.min_observed // f)))
+        except ParameterError:
+            # observed bins too scattered for the coarse bins (one in four: none has half its
+            # bins), though enough to match: every position is scored exactly instead
+            f, indexed, stride = 1, False, 1
     scale = float(getattr(db, "scale_deg", 1.0))
     missing = int(getattr(db, "missing", MISSING_RAW))
     exact = ExactPass(query, scale, missing, n, min(config.slice_rows, EXACT_BATCH))
