@@ -414,3 +414,33 @@ def test_a_forced_dem_of_other_terrain_caps_the_confidence_and_the_same_heights_
     assert np.hypot(fix.x - 412.0, fix.y - 387.0) < 1.0
     assert fix.confidence > 0.5 and any("the same terrain" in n for n in fix.notes), fix.notes
     assert map_agreement(db, load_dem(dem_path), 412.0, 387.0) == (None, None)
+
+
+def test_every_candidate_of_a_fix_carries_the_same_kind_of_score(tmp_path):
+    """Unrefined database candidates were listed with the search's unclipped mean of squares
+    beside the refined ones' clipped cost (3.0 beside 0.17 deg^2 for a rival closer than that).
+    A clipped cost is at most the clip squared (0.25 deg^2), and the unrefined ones' equal the
+    clipped cost of their stored skyline at their heading, taken here directly."""
+    from conftest import shared_dem_path
+    from skyfix.dem import load_dem
+    from skyfix.pose import PoseConfig
+    from skyfix.pose.scoring import clipped_costs
+
+    dem_path = shared_dem_path("south_glacier_20m")
+    build_database(dem_path, tmp_path / "db.zarr", (601000, 6743000, 601630, 6743630), 10,
+                   workers=0, progress=False, block=32)
+    db, dem = open_database(tmp_path / "db.zarr"), load_dem(dem_path)
+    prof = synthetic_profile(dem, 601312.3, 6743287.1, 40.0, noise_deg=0.1, rng=1, n_bins=360)
+    fix = locate(prof, db=db, dem=dem, config=PoseConfig(refine_candidates=1))
+    assert len(fix.candidates) >= 3
+    assert all(0 <= c["score"] <= 0.25 for c in fix.candidates)
+    q = prof.elevation_deg
+    on_grid = [c for c in fix.candidates[1:]  # the unrefined ones stand on database positions
+               if np.isin(c["x"], db.x_coords) and np.isin(c["y"], db.y_coords)]
+    assert on_grid
+    from skyfix.north import meridian_convergence_deg
+
+    for c in on_grid:  # headings from true north, as the fix's: the grid's is the shift
+        grid = c["heading_deg"] - meridian_convergence_deg(db.crs_wkt, c["x"], c["y"])
+        want = clipped_costs(db.profiles_at([c["x"]], [c["y"]]), q, [grid * q.size / 360.0])[0]
+        assert c["score"] == pytest.approx(want, rel=1e-6)

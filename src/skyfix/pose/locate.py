@@ -401,9 +401,14 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
         # a start that stopped on the best answer's floor is that answer, not another candidate
         cand_out = [{"x": d["x"], "y": d["y"], "heading_deg": d["heading"],
                      "score": d["cost"]} for d in results if not d.get("best_basin")]
-        cand_out += [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": c[2]} for c in rest]
-        # candidates refined onto one answer are one candidate: the list gave a fix's own
-        # position three times over as its rivals
+        # one unit: an unrefined database candidate's score was the search's unclipped mean of
+        # squares (3.0 for a clipped 0.17 deg^2): the clipped cost of its stored skyline
+        rs = [c[2] for c in rest] if db is None or not rest else clipped_costs(
+            db.profiles_at([c[0] for c in rest], [c[1] for c in rest]), q,
+            [c[3] * n / 360.0 for c in rest], config.match.remove_tilt)
+        cand_out += [{"x": c[0], "y": c[1], "heading_deg": c[3], "score": float(v)} for c, v in
+                     zip(rest, rs)]
+        # refined onto one answer, one candidate (a fix's own position was listed 3 times)
         kept = []
         for c in cand_out:
             if all(math.hypot(c["x"] - o["x"], c["y"] - o["y"]) > sep for o in kept):
