@@ -96,7 +96,7 @@ def test_streaming_equals_brute_force_on_a_small_store(store):
     assert fast.n_scored_exact < fast.n_positions
 
 
-def test_candidates_are_in_distinct_basins(store):
+def test_candidates_are_a_suppression_radius_apart(store):
     _, st = store
     q = st.profiles_at(600.0, 500.0)[0].astype(float)
     res = match_database(st, q, MatchConfig(coarse_factor=1, top_k=4, nms_radius_m=60.0))

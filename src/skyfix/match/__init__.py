@@ -4,8 +4,8 @@ For every database position the best azimuth shift (the heading) minimises the s
 differences over the query's observed bins after a least-squares fit of a nuisance model (a
 constant; optionally the first azimuthal harmonic of a small pitch/roll). :mod:`.scores` holds
 the maths (FFT cross-correlations and the slow direct reference), :mod:`.search` the streaming
-search over a database's blocks that keeps the best candidates in distinct basins, and
-:mod:`.memory` an in-memory store with the database's block interface.
+search over a database's blocks that keeps the best candidates at least a suppression radius
+apart, and :mod:`.memory` an in-memory store with the database's block interface.
 
 World/body convention: ``world[az] = body[az - H]``, so query bin ``j`` (body) meets database bin
 ``j + s`` (world) and the heading is ``H = s * 360 / n``.

@@ -1,5 +1,7 @@
 """The streaming search: every position of a database (or in-memory store) against the query,
-slice by slice, keeping the best candidates in distinct basins.
+slice by slice, keeping the best candidates at least a suppression radius apart (greedy:
+a candidate may lie on the flank of a better one's basin, just outside its radius; the
+refinement on the DEM then joins them).
 
 For every database position the best azimuth shift ``s`` (the heading) minimises the sum of
 squared differences over the observed bins of the query, after a per-shift least-squares fit of a
@@ -82,7 +84,7 @@ class MatchConfig:
         of 484 blocks decoded against all); of the 20 120-deg views 3 moved, 2 of them out of the
         true basin (10 -> 24 m), with 3 %, 10 % or 20 % of the store kept alike. Hence 0.5: a
         120-deg view keeps stride 1
-    top_k : candidates returned, in distinct basins
+    top_k : candidates returned, at least the suppression radius apart
     nms_radius_m : [m] two candidates are at least this far apart
     slice_rows : positions processed at once (memory ~ slice_rows * bins * 40 bytes)
     workers : threads (BLAS; one goes to the block reader when prefetching)
@@ -134,7 +136,8 @@ class Candidate:
 
 @dataclass
 class MatchResult:
-    """Candidates (best first, distinct basins) and the exact scores behind them.
+    """Candidates (best first, at least the suppression radius apart) and the exact scores
+    behind them.
 
     rows, cols : int (m,) grid positions scored exactly; scores : float32 (m,) [deg^2] their exact
     score; headings : float32 (m,) [deg] their best heading. Only the positions the coarse pass
@@ -323,7 +326,7 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
 
 
 def _result(db, exact: "ExactPass", n_pos: int, timing: dict, config: MatchConfig) -> MatchResult:
-    """The candidates in distinct basins from the exactly scored positions."""
+    """The candidates, at least the suppression radius apart, from the exactly scored positions."""
     import time
 
     if n_pos == 0:

@@ -323,7 +323,7 @@ def locate(profile, *, db=None, dem=None, prior_xy=None, prior_radius_m=None,
             mres = match_database(db, q, config.match, prior_xy=prior_xy,
                                   prior_radius_m=prior_radius_m)
             k = len(mres.candidates)
-            st.result = f"{k} candidate{'s' * (k != 1)} in distinct basins"
+            st.result = f"{k} candidate{'s' * (k != 1)}"
         cands = [(c.x, c.y, c.score, c.heading_deg) for c in mres.candidates]
         _log_candidates("database search", cands)
         step0 = float(db.spacing_m) / 4.0
