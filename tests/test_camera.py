@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 import pytest
 
-from skyfix.camera import Camera, Distortion, r_world_cam
+from skyfix.camera import Camera, Distortion, camera_from_fov, direction_to_az_el, r_world_cam
 
 #: A 90 deg wide camera with all five terms non-zero at the magnitudes of a calibrated wide-angle
 #: lens (barrel k1, tangential terms of a slightly decentred lens), fx != fy and an off-centre
@@ -83,3 +85,39 @@ def test_pixel_to_ray_inverts_opencv_over_the_whole_frame():
     # The corners really are distorted: their rays differ from the pinhole ones by many pixels.
     pinhole = np.stack([(uu - CAM.cx) / CAM.fx, (vv - CAM.cy) / CAM.fy], axis=1)
     assert np.abs(rays[:, :2] - pinhole).max() * CAM.fx > 50
+
+
+def test_undistortion_of_a_strong_wide_lens_against_a_root_finder():
+    """k1 -0.3, k2 0.05 on a 90 deg lens (a real wide-angle calibration): OpenCV's fixed point
+    alone stops 2.6 deg off near the corners. The radius is the root of r (1 + k1 r^2 + k2 r^4)
+    = r_d, found by bisection (scipy's brentq), independent of the camera's code."""
+    from scipy.optimize import brentq
+
+    cam = camera_from_fov(1280, 960, 90.0, Distortion(k1=-0.3, k2=0.05))
+    u, v = np.array([0.0, 1.0, 100.0, 640.0]), np.array([2.0, 2.0, 2.0, 479.5])
+    xd, yd = (u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy
+    x, y = cam.undistort_normalized(xd, yd)
+    for i in range(u.size):
+        rd = math.hypot(xd[i], yd[i])
+        want = brentq(lambda r: r * (1 - 0.3 * r * r + 0.05 * r ** 4) - rd, 0.0, 3.0 * rd + 1e-9)
+        assert math.hypot(x[i], y[i]) == pytest.approx(want, abs=1e-9)
+
+
+def test_directions_beyond_the_image_corner_are_not_projected_into_it():
+    """A barrel lens's polynomial turns over past its field of view: directions 70-85 deg off the
+    axis were distorted back inside the image, and a horizon projected through it mixed them
+    with the true one (9.7 deg off; the single-frame attitude fit then froze at its start)."""
+    from skyfix.profile import horizon_rows
+
+    cam = Camera(1024, 768, 886.8, 886.8, 511.5, 383.5, Distortion(k1=-0.05))
+    _, _, seen = cam.ray_to_pixel(np.array([[math.tan(math.radians(80)), 0.0, 1.0],
+                                            [0.3, 0.2, 1.0]]))
+    assert list(seen) == [False, True]
+    az = np.arange(7200) * 0.05
+    el = 6 + 3 * np.sin(np.radians(3 * az)) + 1.5 * np.cos(np.radians(7 * az + 20))
+    rot = r_world_cam(123, 3, -2, 0, 10)
+    rows = horizon_rows(cam, az, el, rot)
+    a, e = direction_to_az_el(cam.pixel_to_ray(np.arange(1024.0), rows) @ rot.T)
+    ok = np.isfinite(e)
+    assert ok.sum() > 900
+    assert np.max(np.abs(e[ok] - np.interp(a[ok], az, el, period=360))) < 0.01

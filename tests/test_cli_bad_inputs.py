@@ -319,6 +319,9 @@ def test_plot_and_score_map_suffixes(tmp_path, dem_file, profile_json, stub_loca
     ({"camera__cy": -900}, "camera.cy"),
     ({"camera__dist__k1": 50}, "camera.distortion k1=50"),
     ({"camera__dist__k1": -3}, "camera.distortion k1=-3"),  # folds the image over
+    # folds beyond the corner's distorted radius, short of its undistorted one (was accepted:
+    # corner pixels got directions 90 deg apart)
+    ({"camera__fx": 640.0, "camera__fy": 640.0, "camera__dist__k1": -0.15}, "fold the image"),
     ({"camera__dist__p2": 1.0}, "camera.distortion.p2"),
     ({"camera_height_m": 1e9}, "camera_height_m"),
     ({"camera_height_m": "tall"}, "camera_height_m"),

@@ -224,6 +224,6 @@ def test_a_ray_limit_shorter_than_where_rays_start_and_an_infinite_planet_are_re
     x, y = (dem.bounds[0] + dem.bounds[2]) / 2, (dem.bounds[1] + dem.bounds[3]) / 2
     with pytest.raises(ParameterError, match="more than 0.1 m"):
         render_horizons(dem, [x], [y], max_distance_m=0.05)
-    for spec in ("inf", 1e400, "nan"):
+    for spec in ("inf", 1e400):
         with pytest.raises(ParameterError, match="finite number of metres"):
             get_planet(spec)

@@ -65,7 +65,7 @@ def get_planet(spec: str | float | Planet) -> Planet:
         raise ParameterError(
             f"unknown planet {spec!r}: use 'earth', 'mars', 'moon' or a radius in metres"
         ) from None
-    if not math.isfinite(radius):  # inf passed as a flat world, its radius written as null
+    if math.isinf(radius):  # inf passed as a flat world, its radius written as null
         raise ParameterError(f"planet radius must be a finite number of metres, got {spec!r} (a "
                              "flat world has no radius: give the body's)")
     if not radius >= MIN_RADIUS_M:

@@ -207,13 +207,20 @@ def _check_distortion(cam: Camera) -> None:
     xs = np.array([-0.5, cam.width - 0.5]) - cam.cx
     ys = np.array([-0.5, cam.height - 0.5]) - cam.cy
     r_max = math.sqrt(np.max(xs ** 2) / cam.fx ** 2 + np.max(ys ** 2) / cam.fy ** 2)
-    r = np.linspace(0.0, r_max, 201)
+    # r_max is the corner's distorted radius; the undistorted radii that reach it run farther
+    # for a barrel lens (a fold beyond r_max itself was missed: k1 -0.15 on a 90 deg lens gave
+    # its corner pixels directions 90 deg apart)
+    r = np.linspace(0.0, 4.0 * r_max, 4001)
     r2 = r * r
     scale = 1 + d.k1 * r2 + d.k2 * r2 ** 2 + d.k3 * r2 ** 3
+    reach = np.flatnonzero(r * scale >= r_max)
+    # judged out to the farther of the two: the corner's undistorted radius and r_max itself
+    end = max(int(reach[0]) + 1 if reach.size else r.size, int(np.searchsorted(r, r_max)) + 1)
+    r, scale = r[:end], scale[:end]
     lo, hi = RADIAL_SCALE_RANGE
-    # A distorted radius r * scale that stops growing folds the image over itself: two
-    # directions on one pixel, and the fixed-point undistortion no longer converges.
-    folds = np.any(np.diff(r * scale) <= 0)
+    # A distorted radius r * scale that stops growing before the corner folds the image over
+    # itself: two directions on one pixel, and the undistortion no longer converges.
+    folds = not reach.size or np.any(np.diff(r * scale) <= 0)
     if scale.min() < lo or scale.max() > hi or folds:
         worst = float(scale[np.argmax(np.abs(np.log(np.clip(scale, 1e-12, None))))])
         what = "fold the image over itself" if folds else f"scale the radius by {worst:.3g}"
