@@ -716,3 +716,24 @@ def test_filling_holes_around_their_columns_equals_the_whole_image_transform():
         valid[:, -1] = True  # some data (an image of no-data alone is returned as it is)
         _, rr, cc = nearest_valid(valid, 1.0, 64.0)
         assert np.array_equal(fill_invalid(arr, valid), arr[rr, cc])
+
+
+def test_a_cliff_in_the_skyline_is_followed_at_full_resolution():
+    """A skyline flat at row 250.5, then at 210.5 from column 200 on: the full-resolution band
+    allowed no move within a column and only a few rows between columns, so a 40-row step left
+    no allowed path and the right half was lost (0 of 200 columns)."""
+    h = w = 400
+    rng = np.random.default_rng(0)
+    edge = np.where(np.arange(w) < 200, 250.5, 210.5)
+    frac = np.clip(np.arange(h)[:, None] + 0.5 - edge, 0, 1)[..., None]  # each pixel's terrain
+    ground = np.array([120, 90, 60.0]) + 20 * rng.standard_normal((h, w, 1))
+    sky = np.array([240, 225, 205.0]) + 1.5 * rng.standard_normal((h, w, 1))
+    img = np.clip(sky * (1 - frac) + ground * frac, 1, 255).round().astype(np.uint8)
+    rows = np.asarray(detect_skyline(img, method="dp").rows, float)
+    want = edge
+    found = np.isfinite(rows)
+    assert found[:200].sum() >= 190 and found[200:].sum() >= 190
+    off = np.flatnonzero(found & (np.abs(rows - want) > 3.0))
+    # the step itself lies between two columns: the one holding the path's climb may read
+    # either row
+    assert set(off) <= {199, 200}, off

@@ -12,6 +12,9 @@ from ..jit import njit
 from .path import BIG, solve_path
 from .quantile import percentile
 
+#: cost of one row's move within a column of the full-resolution band (a step's cost is 0..1.3)
+REFINE_VERT_COST = 0.05
+
 
 def skyline_allowed(valid, min_sky_rows=1):
     """Where a skyline row may lie (bool, shape of ``valid``): the pixel and the one above it are
@@ -80,7 +83,10 @@ def refine_full(gray, valid, top_full, bottom_full, f, refine_band: float):
     cost[~sub_ok] = BIG
     # columns the coarse pass called no-skyline stay so; the others follow the band optimum
     none = np.where(have, BIG, 0.0)
-    vert = np.full_like(cost, BIG)
+    # moves within a column, inside the band: a cliff steeper than the window between two
+    # columns left no allowed path, and the solver walked through forbidden cells (half a
+    # skyline lost at a 40-row step)
+    vert = np.where(sub_ok, REFINE_VERT_COST, BIG)
     win = int(min(hi - lo, 2 * m + 2 * f))
     top, _ = solve_path(cost, vert, np.zeros_like(cost), none, win, 0.1, 0.0, 0.0)
     got = top >= 0
