@@ -737,3 +737,25 @@ def test_a_cliff_in_the_skyline_is_followed_at_full_resolution():
     # the step itself lies between two columns: the one holding the path's climb may read
     # either row
     assert set(off) <= {199, 200}, off
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.uint32])
+def test_images_of_other_integer_types_are_read_at_their_depth(dtype):
+    """A grey 0-10000 image as int16 was clipped to 255 (all sky: skyline in 0 of 80 columns);
+    read at its effective depth like a 16-bit one it gives the 8-bit image's skyline. Negative
+    values are refused."""
+    from skyfix.errors import ParameterError
+    from skyfix.formats.images import to_8bit
+
+    rng = np.random.default_rng(0)
+    yy = np.arange(120)[:, None] * np.ones((1, 160))
+    grey8 = np.clip(np.where(yy < 60, 220 + 1.5 * rng.standard_normal(yy.shape),
+                             90 + 20 * rng.standard_normal(yy.shape)), 1, 255).astype(np.uint8)
+    big = (grey8.astype(np.int64) * 10000 // 255).astype(dtype)
+    want = np.asarray(detect_skyline(grey8, method="dp").rows, float)
+    got = np.asarray(detect_skyline(big, method="dp").rows, float)
+    assert np.isfinite(want).sum() >= 150
+    np.testing.assert_allclose(got, want, atol=0.05)
+    if np.dtype(dtype).kind == "i":
+        with pytest.raises(ParameterError, match="negative values"):
+            to_8bit(big - 1000)

@@ -19,6 +19,7 @@ def read_image(path) -> "np.ndarray":  # noqa: F821
     """An image file as H x W x 3 RGB or H x W grey (8 or 16 bit), upright as its EXIF
     orientation says (a mask is read the same way)."""
     import cv2
+    import numpy as np
 
     path = Path(path)
     if not path.is_file():
@@ -26,6 +27,10 @@ def read_image(path) -> "np.ndarray":  # noqa: F821
     img = imread_upright(path)
     if img is None:
         raise SkyfixError(f"cannot read {path} as an image (PNG, JPEG or TIFF expected)")
+    if img.dtype.kind in "iu" and img.dtype.itemsize > 1 and img.dtype != np.uint16:
+        from ..formats.images import to_8bit
+
+        img = to_8bit(img)  # OpenCV's colour conversion takes no signed or 32-bit image
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     from ..detect import MIN_HEIGHT_PX, MIN_WIDTH_PX

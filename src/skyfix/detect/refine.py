@@ -12,8 +12,9 @@ from ..jit import njit
 from .path import BIG, solve_path
 from .quantile import percentile
 
-#: cost of one row's move within a column of the full-resolution band (a step's cost is 0..1.3)
-REFINE_VERT_COST = 0.05
+#: cost of one row's move within a column of the full-resolution band (a cell's is 0..1.3): three
+#: times a row of jump between columns, so it serves only a step wider than the jump window
+REFINE_VERT_COST = 0.3
 
 
 def skyline_allowed(valid, min_sky_rows=1):

@@ -21,7 +21,7 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from ..errors import AcquisitionError
+from ..errors import AcquisitionError, ParameterError
 
 #: libjpeg's warnings for data it could not decode (jerror.h: JWRN_JPEG_EOF, JWRN_HIT_MARKER,
 #: JWRN_EXTRANEOUS_DATA and the corrupt-data family)
@@ -58,16 +58,31 @@ def full_scale(img) -> int:
 
 
 def to_8bit(img):
-    """A 16-bit image as uint8 at its effective bit depth (the fewest bits, 8 to 16, that hold its
-    largest value: a 12-bit camera's PNG is 0-4095, not 0-65535), other images unchanged. A
+    """A 16-bit image (or one of another integer type) as uint8 at its effective bit depth (the
+    fewest bits, from 8, that hold its largest value: a 12-bit camera's PNG is 0-4095, not
+    0-65535), 8-bit and float images unchanged; negative values are refused. A
     pixel above zero stays above zero: black is no data to the detectors. Taken as full 16-bit,
     12-bit data came out a sixteenth as bright, and the network found its skyline in 212 of
     1388 columns (1388 at 8 bits)."""
     import cv2
     import numpy as np
 
-    if getattr(img, "dtype", None) != np.uint16:
+    dtype = getattr(img, "dtype", None)
+    if dtype is None or dtype == np.uint8 or dtype.kind not in "iu":
         return img
+    if dtype.kind == "i" and img.size and int(img.min()) < 0:
+        raise ParameterError(f"the image holds negative values ({dtype}, down to {int(img.min())}): "
+                             "a camera image has none; convert it to unsigned 8 or 16 bits")
+    if dtype != np.uint16:
+        # other integer types (signed 16-bit, 32-bit) at their effective depth as well: cast
+        # to 8 bits (clipped at 255) a 0-10000 int16 image read as all sky, an RGB one failed
+        # in OpenCV's colour conversion
+        top = int(img.max()) if img.size else 0
+        white = (1 << max(8, top.bit_length())) - 1
+        out = np.clip(np.rint(np.asarray(img, np.float64) * (255.0 / white)), 0, 255)
+        out = out.astype(np.uint8)
+        out[(out == 0) & (img > 0)] = 1
+        return out
     out = cv2.convertScaleAbs(img, alpha=255.0 / full_scale(img))
     out[(out == 0) & (img > 0)] = 1
     return out
