@@ -65,3 +65,26 @@ def test_too_small_an_overlap_gives_no_shift():
     step = 360.0 / 18000
     fi, fj = frames()
     assert pair_shift(fi, fj, step, 3.0, 2000, clip=0.1) is None
+
+
+def test_pans_two_degrees_off_either_way_are_refined_to_one_common_offset():
+    """Nine 60 deg frames over 20 deg overlaps, their pans off by +2 and -2 deg in turn: two
+    neighbours are 4 deg apart, beyond the 3 deg the pair search reached, and two passes stopped
+    short (0.4 deg between frames, the profile 0.24 deg off). The refined pans keep only a common
+    offset (which no overlap sees: the prior sets it)."""
+    from skyfix.camera import camera_from_fov, r_world_cam
+    from skyfix.formats import Skyline
+    from skyfix.profile import horizon_rows
+    from skyfix.profile.pans import refine_pans
+
+    az = np.arange(36000) * 0.01
+    el = (6 + 3 * np.sin(np.radians(3 * az)) + 1.5 * np.cos(np.radians(7 * az + 20))
+          + 0.5 * np.sin(np.radians(13 * az)))
+    cam = camera_from_fov(1024, 768, 60.0)
+    pans = np.arange(0, 360, 40.0) - 20
+    sky = [Skyline(horizon_rows(cam, az, el, r_world_cam(37, 5, -4, p, 8)), 1024, 768)
+           for p in pans]
+    err = np.tile([2.0, -2.0], 5)[:9]
+    d, _ = refine_pans(cam, sky, pans + err, np.full(9, 8.0))
+    left = err + d
+    assert np.max(np.abs(left - left.mean())) < 0.01
