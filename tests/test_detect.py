@@ -759,3 +759,19 @@ def test_images_of_other_integer_types_are_read_at_their_depth(dtype):
     if np.dtype(dtype).kind == "i":
         with pytest.raises(ParameterError, match="negative values"):
             to_8bit(big - 1000)
+
+
+@pytest.mark.parametrize("edge", [150.5, 195.5, 196.5])
+def test_an_edge_near_the_bottom_is_reported_where_the_conventions_put_it(edge):
+    """A crisp edge between rows k - 1 and k is reported at k - 0.5 (conventions.md). Within 5
+    rows of the image's bottom the half-level crossing is skipped and the step's peak was kept,
+    half a row low (196.5 read 197.0)."""
+    h, w = 200, 300
+    rng = np.random.default_rng(0)
+    frac = np.clip(np.arange(h)[:, None] + 0.5 - edge, 0, 1)[..., None] * np.ones((1, w, 1))
+    ground = np.array([120, 90, 60.0]) + 20 * rng.standard_normal((h, w, 1))
+    sky = np.array([240, 225, 205.0]) + 1.5 * rng.standard_normal((h, w, 1))
+    img = np.clip(sky * (1 - frac) + ground * frac, 1, 255).round().astype(np.uint8)
+    rows = np.asarray(detect_skyline(img, method="dp").rows, float)
+    assert np.isfinite(rows).sum() >= 290
+    assert abs(np.nanmedian(rows) - edge) < 0.1

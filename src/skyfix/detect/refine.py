@@ -103,7 +103,13 @@ def refine_full(gray, valid, top_full, bottom_full, f, refine_band: float):
     out[cols] = r + np.clip(off, -0.5, 0.5)
     del step, cost, vert
     g_row = cv2.GaussianBlur(np.asarray(gray, np.float32), (0, 0), sigmaX=1.0, sigmaY=0.01)
+    peak = out.copy()
     _edge_crossing(g_row, valid, out)
+    # where no half-level crossing moved it (near the image's top or bottom, beside no-data, or
+    # none within 2 px) the row is the step's peak, between rows r - 1 and r: the edge lies half
+    # a row above it (edges at 196.5 and 3.5 read 197.0 and 4.0)
+    kept = np.isfinite(out) & (out == peak)
+    out[kept] -= 0.5
     return out
 
 
