@@ -775,3 +775,14 @@ def test_an_edge_near_the_bottom_is_reported_where_the_conventions_put_it(edge):
     rows = np.asarray(detect_skyline(img, method="dp").rows, float)
     assert np.isfinite(rows).sum() >= 290
     assert abs(np.nanmedian(rows) - edge) < 0.1
+
+
+def test_bayes_is_sure_of_a_column_that_is_all_sky():
+    """Its no-skyline confidence was 1 - the largest sky probability: near 0 for a column surely
+    all sky (0.12 over a clear sky image), though sure."""
+    rng = np.random.default_rng(1)
+    sky = np.clip(np.array([200, 170, 140.0]) + 1.5 * rng.standard_normal((200, 400, 1)), 1,
+                  255).astype(np.uint8)
+    s = detect_skyline(sky, method="bayes")
+    assert not np.isfinite(np.asarray(s.rows, float)).any()
+    assert s.confidence.mean() > 0.5

@@ -166,8 +166,9 @@ def detect_bayes(img, valid, opt: BayesOptions, model=None):
             a = p_sky[max(0, r - 5):r, c].mean() if r > 0 else 0.5
             b = 1 - p_sky[r:r + 5, c].mean()
             conf_s[c] = float(np.clip(a * b, 0, 1))
-        else:
-            conf_s[c] = float(np.clip(1 - p_sky[v, c].max() + 0.0, 0, 1))
+        else:  # how sure the column is all one thing: all terrain, or all sky (that read ~0)
+            pc = p_sky[v, c]
+            conf_s[c] = float(np.clip(max(1.0 - pc.max(), pc.min()), 0, 1))
     conf = conf_s[full_cols]
     rows[~col_valid] = np.nan
     conf[~col_valid] = 0.0
