@@ -121,3 +121,14 @@ def test_directions_beyond_the_image_corner_are_not_projected_into_it():
     ok = np.isfinite(e)
     assert ok.sum() > 900
     assert np.max(np.abs(e[ok] - np.interp(a[ok], az, el, period=360))) < 0.01
+
+
+@pytest.mark.parametrize("kw", [dict(cx=float("nan")), dict(cy=float("inf")), dict(fx=float("inf")),
+                                dict(distortion=Distortion(k1=float("nan")))])
+def test_a_camera_of_non_finite_numbers_is_refused(kw):
+    """NaN or infinite intrinsics were accepted and gave NaN rays for every pixel."""
+    from skyfix.errors import ParameterError
+
+    base = dict(width=640, height=480, fx=500.0, fy=500.0, cx=319.5, cy=239.5)
+    with pytest.raises(ParameterError, match="finite"):
+        Camera(**{**base, **kw})

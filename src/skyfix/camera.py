@@ -114,8 +114,15 @@ class Camera:
     def __post_init__(self):
         if self.width <= 0 or self.height <= 0:
             raise ParameterError(f"camera size must be positive, got {self.width} x {self.height}")
-        if not (self.fx > 0 and self.fy > 0):
-            raise ParameterError(f"camera focal lengths must be > 0 px, got fx={self.fx}, fy={self.fy}")
+        if not (self.fx > 0 and self.fy > 0 and np.isfinite(self.fx) and np.isfinite(self.fy)):
+            raise ParameterError(f"camera focal lengths must be finite and > 0 px, got fx={self.fx}, "
+                                 f"fy={self.fy}")
+        if not (np.isfinite(self.cx) and np.isfinite(self.cy)):  # NaN rays for every pixel
+            raise ParameterError(f"camera principal point must be finite [px], got cx={self.cx}, "
+                                 f"cy={self.cy}")
+        d = self.distortion
+        if not all(np.isfinite(v) for v in (d.k1, d.k2, d.p1, d.p2, d.k3)):
+            raise ParameterError(f"camera distortion coefficients must be finite, got {d}")
 
     @property
     def hfov_deg(self) -> float:
