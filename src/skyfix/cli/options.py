@@ -66,7 +66,8 @@ camera_height_option = click.option(
     help="Camera centre above the ground [m].")
 planet_option = click.option(
     "--planet", default=None, callback=_planet,
-    help="earth, mars, moon, or a planet radius in metres (curvature; refraction 0.13 on Earth); "
+    help="earth, mars, moon, or a planet radius in metres (curvature; refraction 0.13 with "
+         "'earth', none with a radius alone, Earth's included); "
          "default: the body of the DEM's CRS (an Earth CRS may stand in for any body).")
 azimuth_bins_option = click.option(
     "--azimuth-bins", type=int, default=360, show_default=True,
