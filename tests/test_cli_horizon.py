@@ -86,3 +86,14 @@ def test_help_and_version_do_not_import_heavy_modules():
     assert out.stdout.strip() == ""
     r = run("--version")
     assert r.exit_code == 0 and "skyfix, version" in r.output
+
+
+def test_a_point_given_both_ways_is_refused_as_both():
+    """--lon/--lat with one stray --x was answered "give both --x and --y"."""
+    from skyfix.cli.options import check_point_options
+    from skyfix.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="give --x/--y or --lon/--lat, not both"):
+        check_point_options(5.0, None, 8.0, 46.0)
+    with pytest.raises(ParameterError, match="give both --x and --y"):
+        check_point_options(5.0, None, None, None)

@@ -93,6 +93,10 @@ def check_point_options(x, y, lon, lat, *, xname="--x", yname="--y", lonname="--
     file is read); with ``required`` one of the two pairs."""
     import math
 
+    # both kinds at once is said first: "give both --x and --y" misled a user who had given
+    # --lon/--lat and one stray --x
+    if (x is not None or y is not None) and (lon is not None or lat is not None):
+        raise ParameterError(f"give {xname}/{yname} or {lonname}/{latname}, not both")
     for a, b, na, nb in ((x, y, xname, yname), (lon, lat, lonname, latname)):
         if (a is None) != (b is None):
             raise ParameterError(f"give both {na} and {nb}")
