@@ -181,8 +181,10 @@ def tasks_of(todo, renderer: str, slots: int = 1, block: int = 64) -> list[list[
     a side would make it wider than :data:`SWEEP_TASK_SIDE` positions), halved while that leaves
     fewer than two tasks per slot (``slots`` tasks run at once): a 1 x 1 km build at 5 m is one group of 4 x 4,
     which kept one of two workers idle (9.5 s instead of 12.0 s with groups of 2 x 2, for 18 %
-    more CPU). The grouping never changes a value: the sweep's lines lie on a lattice fixed to
-    the DEM."""
+    more CPU). The grouping changes no stored value: the sweep's lines lie on a lattice fixed to
+    the DEM, and where a line's samples start (the rectangle's edge) moves the float sums by at
+    most ~5e-7 deg, a fraction of the store's 0.01 deg step (a review saw 3 bins so among
+    millions, none across a step; resumed 7 x 7 km stores byte-identical)."""
     if renderer != "sweep":
         return [[b] for b in todo]
     side = max(1, min(SWEEP_GROUP, SWEEP_TASK_SIDE // int(block)))
