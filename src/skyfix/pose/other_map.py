@@ -43,7 +43,9 @@ def map_agreement(db, dem, x: float, y: float) -> tuple[str | None, str | None]:
            for dr, dc in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1))}
     rr, cc = (np.array(v) for v in zip(*sorted(pts)))
     gx, gy = db.xy_of(rr, cc)
-    inside = np.array([bool(np.all(dem.contains(a, b))) for a, b in zip(gx, gy)])
+    # inside the DEM with a height (a void has none: render_horizons refuses such a point)
+    inside = np.array([bool(np.all(dem.contains(a, b))) and bool(np.isfinite(dem.height_at(a, b)))
+                       for a, b in zip(gx, gy)])
     if not inside.any():
         return (f"the DEM is not the database's ({mine[:12]}... against {built[:12]}...) and does "
                 "not cover the database positions at the fix: the search ran on terrain the "
