@@ -103,7 +103,7 @@ def test_undistortion_of_a_strong_wide_lens_against_a_root_finder():
         assert math.hypot(x[i], y[i]) == pytest.approx(want, abs=1e-9)
 
 
-def test_directions_beyond_the_image_corner_are_not_projected_into_it():
+def test_directions_beyond_the_lens_fold_are_not_projected_into_the_image():
     """A barrel lens's polynomial turns over past its field of view: directions 70-85 deg off the
     axis were distorted back inside the image, and a horizon projected through it mixed them
     with the true one (9.7 deg off; the single-frame attitude fit then froze at its start)."""

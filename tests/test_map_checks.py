@@ -353,14 +353,14 @@ def test_observable_bins_of_a_level_frame_and_a_panorama():
 
     cam = camera_from_fov(640, 480, 30.0)
     one = Acquisition(root=".", camera=cam, camera_height_m=1.5, frames=(Frame("a", 100.0),))
-    # centres 100 +- (15 + 2) deg at 1 deg bins: 83 .. 117
+    # centres 100 +- (15 + m) deg at 1 deg bins
     assert observable_bins(one, 360) == int(2 * (15 + m)) + 1
     two = Acquisition(root=".", camera=cam, camera_height_m=1.5,
                       frames=(Frame("a", 350.0), Frame("b", 10.0)))
-    assert observable_bins(two, 360) == int(20 + 2 * (15 + m)) + 1  # 323 .. 37 round north
+    assert observable_bins(two, 360) == int(20 + 2 * (15 + m)) + 1  # 335 - m .. 25 + m
     pano = Acquisition(root=".", camera=None, camera_height_m=1.5,
                        panorama=PanoramaSpec("p", azimuth_left_deg=-30.0, hfov_deg=60.0))
-    assert observable_bins(pano, 180) == int((60 + 2 * m) / 2) + 1  # -32 .. 32 at 2 deg bins
+    assert observable_bins(pano, 180) == int((60 + 2 * m) / 2) + 1  # -30 - m .. 30 + m, 2 deg
     assert observable_bins(replace_pano(pano, 359.0), 90) == 90
 
 
@@ -372,8 +372,9 @@ def replace_pano(acq, hfov):
 
 def test_a_view_too_narrow_to_search_is_refused_before_detection(tmp_path, files,
                                                                  detection_forbidden):
-    """A 12 deg lens in one frame can fill at most 16 of 180 bins (32 deg with the margins):
-    the search needs 20. Said before any image is read (detection is the long part)."""
+    """A 12 deg lens in one frame can fill at most 11 of 180 bins (20 deg with the margins for
+    the pan refinement): the search needs 20. Said before any image is read (detection is the
+    long part)."""
     from skyfix.camera import camera_from_fov
     from skyfix.formats import Acquisition, Frame, save_acquisition
 
@@ -385,7 +386,7 @@ def test_a_view_too_narrow_to_search_is_refused_before_detection(tmp_path, files
                                       camera_height_m=1.5, frames=(Frame("f0.png", 0.0, 0.0),)))
     r = _run("locate", acq, "--db", db_path, "--dem", dem_path)
     assert r.exit_code == 2, r.output
-    assert "can observe at most 9 of the profile's 180 azimuth bins" in r.output
+    assert "can observe at most 11 of the profile's 180 azimuth bins" in r.output
     assert "needs at least 20" in r.output and "Traceback" not in r.output
 
 

@@ -10,7 +10,10 @@ positive up.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -199,26 +202,33 @@ class Camera:
         x, y = self.undistort_normalized((u - self.cx) / self.fx, (v - self.cy) / self.fy)
         return np.stack([x, y, np.ones_like(x)], axis=-1)
 
-    def corner_radius(self) -> float:
-        """Undistorted normalised radius [tan of the angle off the axis] of the image corner
-        farthest from the principal point: no direction beyond it is in the image."""
-        u = np.array([-0.5, self.width - 0.5, -0.5, self.width - 0.5])
-        v = np.array([-0.5, -0.5, self.height - 0.5, self.height - 0.5])
-        x, y = self.undistort_normalized((u - self.cx) / self.fx, (v - self.cy) / self.fy)
-        return float(np.max(np.hypot(x, y)))
+    @cached_property
+    def fold_radius(self) -> float:
+        """Undistorted normalised radius [tan of the angle off the axis] beyond which the radial
+        distortion turns over (the distorted radius stops growing: directions beyond it land
+        back inside the image); inf where it never does (no distortion, pincushion). Sampled
+        out to 87 deg off the axis, the tangential terms left out."""
+        d = self.distortion
+        if d.k1 == d.k2 == d.k3 == 0.0:
+            return math.inf
+        r = np.linspace(0.0, 20.0, 20001)
+        r2 = r * r
+        grow = 1 + 3 * d.k1 * r2 + 5 * d.k2 * r2 * r2 + 7 * d.k3 * r2 * r2 * r2  # d(r s(r))/dr
+        turn = np.flatnonzero(grow <= 0)
+        return float(r[turn[0]]) if turn.size else math.inf
 
     def ray_to_pixel(self, d_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pixel (u, v) [px] of camera-frame directions ``(..., 3)``, and a mask of those that
-        can be in the image: in front, and (with distortion) no farther off the axis than the
-        image's corner (beyond it a barrel lens's polynomial turns over, and directions 70-85 deg
-        off the axis landed inside the image)."""
+        can be projected: in front, and short of the lens's fold (:attr:`fold_radius`: with
+        k1 -0.05 directions 70-85 deg off the axis were distorted back inside the image)."""
         d_cam = np.asarray(d_cam, dtype=float)
         z = d_cam[..., 2]
         front = z > 1e-9
         zs = np.where(front, z, 1.0)
         xn, yn = d_cam[..., 0] / zs, d_cam[..., 1] / zs
-        if not self.distortion.is_zero:
-            front = front & (xn * xn + yn * yn <= (1.05 * self.corner_radius()) ** 2)
+        fold = self.fold_radius
+        if math.isfinite(fold):
+            front = front & (xn * xn + yn * yn < fold * fold)
         x, y = self.distort_normalized(xn, yn)
         return self.fx * x + self.cx, self.fy * y + self.cy, front
 

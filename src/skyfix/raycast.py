@@ -215,7 +215,9 @@ def _pixel_dir(kind, p, R, u, v):
         x = xd
         y = yd
         if k1 != 0.0 or k2 != 0.0 or p1 != 0.0 or p2 != 0.0 or k3 != 0.0:
-            # Same fixed-point inversion as Camera.undistort_normalized (OpenCV's).
+            # The inversion of Camera.undistort_normalized: OpenCV's fixed point, then Newton
+            # steps (the fixed point alone stops degrees off at a strong wide lens's corners,
+            # and the simulator and the profile would then disagree)
             for _ in range(20):
                 r2 = x * x + y * y
                 radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
@@ -223,6 +225,22 @@ def _pixel_dir(kind, p, R, u, v):
                 ddy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
                 x = (xd - ddx) / radial
                 y = (yd - ddy) / radial
+            for _ in range(30):
+                r2 = x * x + y * y
+                radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+                ex = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) - xd
+                ey = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y - yd
+                if not (abs(ex) > 1e-12 or abs(ey) > 1e-12):
+                    break
+                dr = k1 + 2 * k2 * r2 + 3 * k3 * r2 * r2
+                ja = radial + 2 * x * x * dr + 2 * p1 * y + 6 * p2 * x
+                jb = 2 * x * y * dr + 2 * p1 * x + 2 * p2 * y
+                je = radial + 2 * y * y * dr + 6 * p1 * y + 2 * p2 * x
+                det = ja * je - jb * jb
+                if det == 0.0:
+                    break
+                x -= (je * ex - jb * ey) / det
+                y -= (ja * ey - jb * ex) / det
         a0, a1, a2 = x, y, 1.0
     else:
         az = math.radians(p[0] + (u + 0.5) * p[1])
@@ -321,7 +339,10 @@ def _first_hit(z, pdata, poffs, prows, pcols, u0, v0, du, dv, zc, tan_el, t_end,
         # From the camera itself in the first cell: a ray steep enough to meet the ground within
         # t_min (more than 86 deg down at 1.5 m) is already under it there, and was given t_min
         # (a hit tens of metres away along the ray, below the ground)
-        s = _first_root(0.0 if t <= t_min else t, t_exit, p - zc, b - tan_el, q - curv)
+        # (downward rays only, the camera above the ground: one on it would hit at 0 whatever
+        # its direction)
+        s = _first_root(0.0 if t <= t_min and tan_el < 0.0 and p < zc else t, t_exit, p - zc,
+                        b - tan_el, q - curv)
         if s >= 0.0:
             return s
         t = t_exit + eps_t

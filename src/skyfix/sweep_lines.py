@@ -52,8 +52,22 @@ def _in_cell(z, i, j, u, v):
     across the edge (:func:`~skyfix.horizon.bilinear` reads the cell a rounding picks)."""
     fu = min(max(u - j, 0.0), 1.0)
     fv = min(max(v - i, 0.0), 1.0)
-    return (z[i, j] * (1 - fu) * (1 - fv) + z[i, j + 1] * fu * (1 - fv)
-            + z[i + 1, j] * (1 - fu) * fv + z[i + 1, j + 1] * fu * fv)
+    # corners of weight 0 left out, as horizon.bilinear does: a line along the cell's edge has
+    # the edge's height whichever side a void lies
+    h = 0.0
+    w = (1 - fu) * (1 - fv)
+    if w != 0.0:
+        h += z[i, j] * w
+    w = fu * (1 - fv)
+    if w != 0.0:
+        h += z[i, j + 1] * w
+    w = (1 - fu) * fv
+    if w != 0.0:
+        h += z[i + 1, j] * w
+    w = fu * fv
+    if w != 0.0:
+        h += z[i + 1, j + 1] * w
+    return h
 
 
 @njit(cache=True, nogil=True)

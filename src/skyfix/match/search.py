@@ -30,6 +30,7 @@ World/body convention: ``world[az] = body[az - H]``, so query bin ``j`` (body) m
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -262,6 +263,9 @@ def match_database(db, query_deg, config: MatchConfig = MatchConfig(), *, prior_
             # observed bins too scattered for the coarse bins (one in four: none has half its
             # bins), though enough to match: every position is scored exactly instead
             f, indexed, stride = 1, False, 1
+            logging.getLogger("skyfix.match").info(
+                "the profile's observed bins are too scattered for the coarse pass: every "
+                "position is scored exactly (tens of times the usual search's work)")
     scale = float(getattr(db, "scale_deg", 1.0))
     missing = int(getattr(db, "missing", MISSING_RAW))
     exact = ExactPass(query, scale, missing, n, min(config.slice_rows, EXACT_BATCH))

@@ -34,8 +34,8 @@ def profile_bins(db=None) -> int:
 
 
 #: [deg] margin on each side of a frame's azimuths in :func:`observable_bins`: the pan
-#: refinement may move a frame (by far less) and the rows are sampled, not all taken
-OBSERVABLE_MARGIN_DEG = 2.0
+#: refinement may move a frame by up to its search bound, and the rows are sampled
+OBSERVABLE_MARGIN_DEG = DEFAULT_REFINEMENT.search_deg + 1.0
 
 
 def observable_bins(acq: Acquisition, azimuth_bins: int = DEFAULT_AZIMUTH_BINS) -> int:
