@@ -37,8 +37,9 @@ def map_agreement(db, dem, x: float, y: float) -> tuple[str | None, str | None]:
     if not built or not mine or built == mine:
         return None, None
     rows, cols = db.shape
-    r, c = (int(v) for v in db.index_of(x, y))
-    r, c = min(max(r, 0), rows - 1), min(max(c, 0), cols - 1)
+    r0, c0 = (int(v) for v in db.index_of(x, y))
+    r, c = min(max(r0, 0), rows - 1), min(max(c0, 0), cols - 1)
+    edge = (r, c) != (r0, c0)
     pts = {(min(max(r + dr, 0), rows - 1), min(max(c + dc, 0), cols - 1))
            for dr, dc in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1))}
     rr, cc = (np.array(v) for v in zip(*sorted(pts)))
@@ -58,8 +59,9 @@ def map_agreement(db, dem, x: float, y: float) -> tuple[str | None, str | None]:
     med = float(np.median(diff[both])) if both.any() else float("inf")
     top = float(diff[both].max()) if both.any() else float("inf")
     said = (f"the DEM is not the database's ({mine[:12]}... against {built[:12]}...): its "
-            f"skylines at the {gx.size} database positions nearest the fix differ from the "
-            f"stored ones by a median {med:.3f} deg (at most {top:.2f} deg)")
+            f"skylines at the {gx.size} database positions nearest the fix"
+            + (" (on the grid's edge: the fix lies outside it)" if edge else "")
+            + f" differ from the stored ones by a median {med:.3f} deg (at most {top:.2f} deg)")
     if med > OTHER_MAP_MEDIAN_DEG:
         return said + "; the search ranked positions on another map's terrain", None
     return None, said + ", the same terrain within the store's rounding"
