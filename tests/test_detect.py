@@ -716,6 +716,9 @@ def test_filling_holes_around_their_columns_equals_the_whole_image_transform():
         valid[:, -1] = True  # some data (an image of no-data alone is returned as it is)
         _, rr, cc = nearest_valid(valid, 1.0, 64.0)
         assert np.array_equal(fill_invalid(arr, valid), arr[rr, cc])
+        rgb = np.stack([arr, -arr, 2 * arr], axis=2)  # colour: no mirroring, the transform alone
+        _, rr, cc = nearest_valid(valid, 1.0, 64.0)
+        assert np.array_equal(fill_invalid(rgb, valid), rgb[rr, cc])
 
 
 def test_a_cliff_in_the_skyline_is_followed_at_full_resolution():
