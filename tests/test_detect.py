@@ -789,3 +789,16 @@ def test_bayes_is_sure_of_a_column_that_is_all_sky():
     s = detect_skyline(sky, method="bayes")
     assert not np.isfinite(np.asarray(s.rows, float)).any()
     assert s.confidence.mean() > 0.5
+
+
+def test_a_skyline_across_an_image_narrower_than_the_shortest_run_is_kept():
+    """Runs shorter than 4 columns are dropped as specks; an image 3 px wide lost its whole
+    skyline so (dp found it at 30.53 with min_run 1)."""
+    from skyfix.detect.runs import drop_short_runs
+
+    rows, conf = np.array([30.5, 30.6, 30.4]), np.ones(3)
+    drop_short_runs(rows, conf, 4)
+    assert np.isfinite(rows).all()
+    rows = np.array([np.nan, 30.5, 30.6, 30.4, np.nan, 12.0])
+    drop_short_runs(rows, np.ones(6), 4)
+    assert not np.isfinite(rows).any()  # within a wider image, a 3-column run is still a speck

@@ -16,7 +16,9 @@ def finite_runs(rows):
 
 def drop_short_runs(rows, conf, min_len):
     """Set runs of finite ``rows`` shorter than ``min_len`` columns to NaN (confidence 0), in
-    place."""
+    place. A run across the whole image is kept however narrow the image (one 2-3 px wide lost
+    its skyline)."""
+    min_len = min(min_len, rows.size)
     for a, b in finite_runs(rows):
         if b - a < min_len:
             rows[a:b] = np.nan
