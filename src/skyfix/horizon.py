@@ -154,10 +154,15 @@ def bilinear(z, u, v):
     ny, nx = z.shape
     j = min(int(math.floor(u)), nx - 2)
     i = min(int(math.floor(v)), ny - 2)
-    fu = u - j
-    fv = v - i
-    # a corner of weight 0 is left out, not multiplied: on a grid line beside a void the height
-    # is the line's own (NaN * 0 made it NaN on one side of a void and not the other)
+    return corner_sum(z, i, j, u - j, v - i)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def corner_sum(z, i, j, fu, fv):
+    """Bilinear height [m] in cell (i, j) at fractions ``fu`` (column), ``fv`` (row) in [0, 1]
+    across it. A corner of weight 0 is left out, not multiplied: on a grid line beside a void
+    the height is the line's own (NaN * 0 made it NaN on one side of a void and not the
+    other)."""
     h = 0.0
     w = (1 - fu) * (1 - fv)
     if w != 0.0:

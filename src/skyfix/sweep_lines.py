@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from .horizon import bilinear
+from .horizon import bilinear, corner_sum
 from .jit import njit
 
 #: most points added along one concave piece of a line
@@ -50,24 +50,9 @@ def _in_cell(z, i, j, u, v):
     """Bilinear height [m] at (u, v) from cell (i, j)'s corners alone, the fractions clamped to
     the cell: a crossing on the cell's edge read from the piece's own cell, whatever void lies
     across the edge (:func:`~skyfix.horizon.bilinear` reads the cell a rounding picks)."""
-    fu = min(max(u - j, 0.0), 1.0)
-    fv = min(max(v - i, 0.0), 1.0)
     # corners of weight 0 left out, as horizon.bilinear does: a line along the cell's edge has
     # the edge's height whichever side a void lies
-    h = 0.0
-    w = (1 - fu) * (1 - fv)
-    if w != 0.0:
-        h += z[i, j] * w
-    w = fu * (1 - fv)
-    if w != 0.0:
-        h += z[i, j + 1] * w
-    w = (1 - fu) * fv
-    if w != 0.0:
-        h += z[i + 1, j] * w
-    w = fu * fv
-    if w != 0.0:
-        h += z[i + 1, j + 1] * w
-    return h
+    return corner_sum(z, i, j, min(max(u - j, 0.0), 1.0), min(max(v - i, 0.0), 1.0))
 
 
 @njit(cache=True, nogil=True)
