@@ -11,7 +11,6 @@ positive up.
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
@@ -182,13 +181,13 @@ class Camera:
                 r2 = x * x + y * y
                 radial = 1 + d.k1 * r2 + d.k2 * r2 * r2 + d.k3 * r2 * r2 * r2
                 dr = d.k1 + 2 * d.k2 * r2 + 3 * d.k3 * r2 * r2  # d radial / d r2
+                # the Jacobian [[a, b], [b, e]]: both off-diagonal terms are the same
                 a = radial + 2 * x * x * dr + 2 * d.p1 * y + 6 * d.p2 * x
                 b = 2 * x * y * dr + 2 * d.p1 * x + 2 * d.p2 * y
-                c = 2 * x * y * dr + 2 * d.p1 * x + 2 * d.p2 * y
                 e = radial + 2 * y * y * dr + 6 * d.p1 * y + 2 * d.p2 * x
-                det = a * e - b * c
+                det = a * e - b * b
                 x = x - (e * ex - b * ey) / det
-                y = y - (a * ey - c * ex) / det
+                y = y - (a * ey - b * ex) / det
             ex, ey = self.distort_normalized(x, y)
             bad = ~(np.hypot(ex - xd, ey - yd) <= 1e-9)
         if np.any(bad):
