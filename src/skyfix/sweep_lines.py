@@ -91,11 +91,12 @@ def line_samples(z, uc, vc, us, vs, s_a, s_in, s_b, curv, out_s, out_w, arc_tol,
             ku += step_u
         if kv <= nxt:
             kv += step_v
-        h1 = bilinear(z, uc + us * nxt, vc + vs * nxt)
         mid = 0.5 * (s + nxt)
         j = min(max(int(math.floor(uc + us * mid)), 0), nx - 2)
         i = min(max(int(math.floor(vc + vs * mid)), 0), ny - 2)
-        if nxt > s:
+        if nxt <= s:  # a piece of length 0 (see above): its end is its start
+            h1 = bilinear(z, uc + us * nxt, vc + vs * nxt)
+        else:
             # Both ends from the piece's own cell: a crossing read from the cell beyond it was
             # NaN where that cell touches a void (a reprojected DEM's wedges), and the whole
             # valid piece before it, crest and end, was lost to the hull (skylines 1.5-4.9 deg
