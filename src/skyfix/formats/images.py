@@ -51,10 +51,10 @@ def imread_upright(path):
 
 
 def full_scale(img) -> int:
-    """The value white has in a 16-bit image: 2**bits - 1 for the fewest bits, 8 to 16, that hold
-    its largest value (a 12-bit camera's PNG is 0-4095, not 0-65535)."""
+    """The value white has in an integer image: 2**bits - 1 for the fewest bits, from 8 to its
+    type's, that hold its largest value (a 12-bit camera's 16-bit PNG is 0-4095, not 0-65535)."""
     top = int(img.max()) if img.size else 0
-    return (1 << min(16, max(8, top.bit_length()))) - 1
+    return (1 << min(8 * img.dtype.itemsize, max(8, top.bit_length()))) - 1
 
 
 def to_8bit(img):
@@ -73,17 +73,14 @@ def to_8bit(img):
     if dtype.kind == "i" and img.size and int(img.min()) < 0:
         raise ParameterError(f"the image holds negative values ({dtype}, down to {int(img.min())}): "
                              "a camera image has none; convert it to unsigned 8 or 16 bits")
-    if dtype != np.uint16:
+    if dtype == np.uint16:
+        out = cv2.convertScaleAbs(img, alpha=255.0 / full_scale(img))
+    else:
         # other integer types (signed 16-bit, 32-bit) at their effective depth as well: cast
         # to 8 bits (clipped at 255) a 0-10000 int16 image read as all sky, an RGB one failed
         # in OpenCV's colour conversion
-        top = int(img.max()) if img.size else 0
-        white = (1 << max(8, top.bit_length())) - 1
-        out = np.clip(np.rint(np.asarray(img, np.float64) * (255.0 / white)), 0, 255)
+        out = np.clip(np.rint(np.asarray(img, np.float64) * (255.0 / full_scale(img))), 0, 255)
         out = out.astype(np.uint8)
-        out[(out == 0) & (img > 0)] = 1
-        return out
-    out = cv2.convertScaleAbs(img, alpha=255.0 / full_scale(img))
     out[(out == 0) & (img > 0)] = 1
     return out
 
