@@ -8,11 +8,11 @@ from typing import Sequence
 
 import numpy as np
 
+from ..camera import direction_to_az_el, r_world_cam
 from ..errors import DetectionError, ParameterError
 from ..formats import Acquisition, Profile, Skyline
 from .frames import Detector, detect_frames, get_detector, read_rgb
-from ..camera import C_CAM_TO_BODY, direction_to_az_el, r_body_mast
-from .geometry import check_bins, levelling_rotation, sample_polyline
+from .geometry import check_bins, sample_polyline
 from .pans import DEFAULT_REFINEMENT, PanRefinement
 from .project import panorama_profile, profile_from_skylines
 
@@ -59,8 +59,8 @@ def observable_bins(acq: Acquisition, azimuth_bins: int = DEFAULT_AZIMUTH_BINS) 
     # the image's edges, not its outer pixel centres, bound what it sees
     u = np.linspace(-0.5, cam.width - 0.5, cam.width + 1)
     for fr in acq.frames:
-        rot = (levelling_rotation(acq.prior_pitch_deg, acq.prior_roll_deg)
-               @ r_body_mast(fr.pan_deg, fr.tilt_deg) @ C_CAM_TO_BODY)
+        # camera axes -> the levelled body frame the profile is in (yaw 0)
+        rot = r_world_cam(0.0, acq.prior_pitch_deg, acq.prior_roll_deg, fr.pan_deg, fr.tilt_deg)
         for r in np.linspace(-0.5, cam.height - 0.5, 33):
             az, _ = direction_to_az_el(cam.pixel_to_ray(u, np.full(u.size, r)) @ rot.T)
             # only which bin centres the row's azimuths cover counts; columns a bin apart at
