@@ -56,18 +56,25 @@ def observable_bins(acq: Acquisition, azimuth_bins: int = DEFAULT_AZIMUTH_BINS) 
         return int(np.count_nonzero(off <= spec.hfov_deg + 2 * OBSERVABLE_MARGIN_DEG))
     cam = acq.camera
     seen = np.zeros(azimuth_bins, bool)
-    # the image's edges, not its outer pixel centres, bound what it sees
-    u = np.linspace(-0.5, cam.width - 0.5, cam.width + 1)
+    # The image's border, walked round once: azimuth has no extreme inside a frame (the lens maps
+    # it smoothly onto the sky, where azimuth's only critical points are the poles), so the
+    # border reaches every azimuth the frame does; a border round a pole sweeps the whole
+    # circle. Its edges, not its outer pixel centres, bound what it sees. (33 whole rows a
+    # frame took 0.34 s for 12 frames of a distorted lens, at the start of every locate.)
+    w, h = cam.width - 0.5, cam.height - 0.5
+    top = np.linspace(-0.5, w, cam.width + 1)
+    side = np.linspace(-0.5, h, cam.height + 1)
+    u = np.concatenate([top, np.full(side.size, w), top[::-1], np.full(side.size, -0.5), [-0.5]])
+    v = np.concatenate([np.full(top.size, -0.5), side, np.full(top.size, h), side[::-1], [-0.5]])
     for fr in acq.frames:
         # camera axes -> the levelled body frame the profile is in (yaw 0)
         rot = r_world_cam(0.0, acq.prior_pitch_deg, acq.prior_roll_deg, fr.pan_deg, fr.tilt_deg)
-        for r in np.linspace(-0.5, cam.height - 0.5, 33):
-            az, _ = direction_to_az_el(cam.pixel_to_ray(u, np.full(u.size, r)) @ rot.T)
-            # only which bin centres the row's azimuths cover counts; columns a bin apart at
-            # most join (a wide lens), a jump (round a pole) does not
-            got, _ = sample_polyline(az, np.zeros_like(az), azimuth_bins,
-                                     max_step_deg=max(2.0, 2 * step))
-            seen |= np.isfinite(got)
+        az, _ = direction_to_az_el(cam.pixel_to_ray(u, v) @ rot.T)
+        # only which bin centres the border's azimuths cover counts; points a bin apart at most
+        # join (a wide lens)
+        got, _ = sample_polyline(az, np.zeros_like(az), azimuth_bins,
+                                 max_step_deg=max(2.0, 2 * step))
+        seen |= np.isfinite(got)
     # widen every observed run by the margin, round the circle
     k = int(np.ceil(OBSERVABLE_MARGIN_DEG / step))
     wide = seen.copy()
